@@ -1,0 +1,133 @@
+//! The "HAL traits": how scans and poses enter the mapper.
+//!
+//! The firmware implements [`RangeSensor`] with its LD06 UART driver and [`PoseSource`] with the
+//! pose frames that arrive on the same link; the host simulator implements both with its synthetic
+//! lidar and known trajectory. Both then drive the very same [`crate::pipeline`] code, so the
+//! simulator exercises the robot's code path.
+
+use crate::angle::Angle;
+use crate::geometry::Pose;
+
+/// One range reading.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Range {
+    /// The beam hit something this many millimetres away.
+    Hit(u32),
+    /// Nothing within the sensor's maximum range: the beam frees space only.
+    NoReturn,
+}
+
+/// A beam: its direction relative to the robot's heading and what it measured.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Beam {
+    /// Direction relative to the robot heading (counter-clockwise).
+    pub angle: Angle,
+    /// The reading.
+    pub range: Range,
+}
+
+/// A bounded buffer for one scan, filled by a [`RangeSensor`]. Beams beyond the capacity `N`
+/// are dropped and counted, never written out of bounds.
+#[derive(Clone, Debug, Default)]
+pub struct ScanBuf<const N: usize> {
+    beams: heapless::Vec<Beam, N>,
+    overflow: u32,
+}
+
+impl<const N: usize> ScanBuf<N> {
+    /// An empty buffer.
+    pub const fn new() -> Self {
+        ScanBuf {
+            beams: heapless::Vec::new(),
+            overflow: 0,
+        }
+    }
+
+    /// Empties the buffer and resets the overflow count.
+    pub fn clear(&mut self) {
+        self.beams.clear();
+        self.overflow = 0;
+    }
+
+    /// Appends a beam; returns `false` (and counts it) if the buffer is full.
+    pub fn push(&mut self, beam: Beam) -> bool {
+        if self.beams.push(beam).is_err() {
+            self.overflow = self.overflow.saturating_add(1);
+            false
+        } else {
+            true
+        }
+    }
+
+    /// The beams so far.
+    pub fn beams(&self) -> &[Beam] {
+        &self.beams
+    }
+
+    /// Number of beams dropped because the buffer was full.
+    pub const fn overflow(&self) -> u32 {
+        self.overflow
+    }
+
+    /// Sorts the beams by angle (stable, so equal angles keep arrival order). The cone model
+    /// requires it; LD06 scans arrive nearly sorted, which this handles in near-linear time.
+    pub fn sort_by_angle(&mut self) {
+        // Insertion sort: no allocation, stable, linear on the nearly-sorted data lidars emit.
+        let b = self.beams.as_mut_slice();
+        for i in 1..b.len() {
+            let mut j = i;
+            while j > 0 {
+                let (Some(prev), Some(cur)) = (b.get(j - 1), b.get(j)) else {
+                    break;
+                };
+                if prev.angle.0 <= cur.angle.0 {
+                    break;
+                }
+                b.swap(j - 1, j);
+                j -= 1;
+            }
+        }
+    }
+}
+
+/// A source of complete scans (one sensor revolution).
+pub trait RangeSensor {
+    /// Transport or protocol error.
+    type Error;
+    /// Blocks until the next complete scan is available and writes it into `scan` (which the
+    /// implementation clears first).
+    fn read_scan<const N: usize>(&mut self, scan: &mut ScanBuf<N>) -> Result<(), Self::Error>;
+}
+
+/// A source of robot poses (known-pose mapping, as in the papers).
+pub trait PoseSource {
+    /// Transport or protocol error.
+    type Error;
+    /// The pose at which the most recently read scan was taken.
+    fn current_pose(&mut self) -> Result<Pose, Self::Error>;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scan_buf_is_bounded_and_sorts() {
+        let mut s: ScanBuf<3> = ScanBuf::new();
+        for a in [30u16, 10, 20, 5] {
+            s.push(Beam {
+                angle: Angle(a),
+                range: Range::NoReturn,
+            });
+        }
+        assert_eq!(s.beams().len(), 3);
+        assert_eq!(s.overflow(), 1);
+        s.sort_by_angle();
+        let a: Vec<u16> = s.beams().iter().map(|b| b.angle.0).collect();
+        assert_eq!(a, vec![10, 20, 30]);
+        s.clear();
+        assert_eq!((s.beams().len(), s.overflow()), (0, 0));
+    }
+}
