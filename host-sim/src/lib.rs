@@ -1,0 +1,8 @@
+//! `host-sim`: the std side of the project — worlds, robot motion, synthetic lidar, metrics,
+//! evaluation reports, plots, prior training and map I/O. Everything that maps calls `ogm-core`;
+//! nothing here re-implements it.
+#![warn(missing_docs)]
+
+pub mod metrics;
+pub mod render;
+pub mod world;
