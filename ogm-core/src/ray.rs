@@ -147,6 +147,15 @@ impl Ray {
     /// (indexing with the result is still checked by the caller).
     #[inline]
     pub fn for_each_index(&self, steps: Steps, width: u16, mut f: impl FnMut(u64, usize)) {
+        self.walk(steps, width, |i, idx| {
+            f(i, idx);
+            true
+        });
+    }
+
+    /// [`Ray::for_each_index`] that stops as soon as `f` returns `false`.
+    #[inline]
+    fn walk(&self, steps: Steps, width: u16, mut f: impl FnMut(u64, usize) -> bool) {
         let w = width as isize;
         let (major_stride, minor_stride) = if self.x_major {
             (self.step_x as isize, self.step_y as isize * w)
@@ -169,8 +178,7 @@ impl Ray {
         };
         let mut i = steps.first;
         loop {
-            f(i, index as usize);
-            if i >= steps.last {
+            if !f(i, index as usize) || i >= steps.last {
                 break;
             }
             i += 1;
@@ -181,6 +189,24 @@ impl Ray {
                 index += minor_stride;
             }
         }
+    }
+}
+
+impl Ray {
+    /// The first step in `steps` (from [`Ray::clip`] with the same `width`) whose row-major
+    /// index satisfies `pred`, walking in ray order and stopping there.
+    #[inline]
+    pub fn find_step(&self, steps: Steps, width: u16, mut pred: impl FnMut(usize) -> bool) -> Option<u64> {
+        let mut found = None;
+        self.walk(steps, width, |i, idx| {
+            if pred(idx) {
+                found = Some(i);
+                false
+            } else {
+                true
+            }
+        });
+        found
     }
 }
 

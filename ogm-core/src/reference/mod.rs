@@ -131,3 +131,6 @@ where
             .map(|&l| probability_of_nats(l))
     }
 }
+
+mod gibbs;
+pub use gibbs::{ReferenceGibbs, ReferenceModel};

@@ -1,0 +1,309 @@
+//! The measurement store: the rays the Gibbs sampler evaluates, in bounded, caller-provided
+//! memory.
+//!
+//! Rays are grouped by scan: a [`StoredScan`] keeps the pose once, and each of its rays
+//! ([`StoredRay`], 6 bytes) keeps only the beam angle, the measured range (or "no return") and a
+//! cache of the ray's first occupied step in the sampler's current map. Every ray is traced from
+//! the cell of its scan's pose to the point at maximum range (the "far end"), so the sampler can
+//! ask "where is the first occupied cell?" beyond the measured range too; the measured range is
+//! stored as a (fractional) step index along that Bresenham line.
+//!
+//! **When full**, the store thins uniformly instead of forgetting places: if the ray array is full
+//! every stored scan drops every second ray and new scans are decimated by the same (doubled)
+//! factor; if the scan array is full every second scan is dropped. Both keep spatial coverage,
+//! which the sampler needs more than density (the papers' sparse-data experiments show the
+//! sampler does well with thinned data). Everything dropped is counted in [`StoreStats`].
+
+use crate::error::{Error, Result};
+use crate::geometry::{CellCoord, GridGeometry, Pose};
+use crate::hal::{Beam, Range};
+use crate::ray::Ray;
+use crate::Angle;
+
+/// Marker for "no return" in [`StoredRay::z_q4`] and "no occupied cell" in
+/// [`StoredRay::first_occupied`].
+pub const NONE: u16 = u16::MAX;
+
+/// A scan in the store.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StoredScan {
+    /// Where it was taken.
+    pub pose: Pose,
+    /// Index of its first ray in the ray array.
+    pub first: u32,
+    /// Number of rays.
+    pub len: u32,
+}
+
+/// A ray in the store (6 bytes).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StoredRay {
+    /// Beam direction relative to the scan's heading.
+    pub angle: Angle,
+    /// Measured range as a step index along the ray, in 1/16 steps; [`NONE`] = no return.
+    pub z_q4: u16,
+    /// Cache: first occupied step in the sampler's current map, [`NONE`] if none.
+    pub first_occupied: u16,
+}
+
+/// A ray's geometry, derived from its scan's pose and its angle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RayGeometry {
+    /// The Bresenham ray from the pose's cell to the far end.
+    pub ray: Ray,
+    /// Length of one step in cells, Q12 (4096 = 1, up to √2).
+    pub step_q12: u32,
+}
+
+/// Counters of what the store did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StoreStats {
+    /// Scans accepted.
+    pub scans_added: u32,
+    /// Rays accepted.
+    pub rays_added: u32,
+    /// Beams not stored because of the current decimation.
+    pub rays_decimated: u32,
+    /// Rays removed later by thinning.
+    pub rays_thinned: u32,
+    /// Beams dropped as invalid (closer than the minimum range).
+    pub rays_invalid: u32,
+    /// Times the store halved its rays or scans.
+    pub thinnings: u32,
+}
+
+/// The bounded ray store over caller storage.
+#[derive(Clone, Debug)]
+pub struct RayStore<S, R> {
+    geometry: GridGeometry,
+    max_range_mm: u32,
+    min_range_mm: u32,
+    scans: S,
+    rays: R,
+    n_scans: usize,
+    n_rays: usize,
+    decimation: u32,
+    stats: StoreStats,
+}
+
+/// Length (Q8 cells) of the vector (dx, dy).
+fn length_q8(dx: i64, dy: i64) -> u64 {
+    ((dx * dx + dy * dy) as u64).saturating_mul(1 << 16).isqrt()
+}
+
+impl<S, R> RayStore<S, R>
+where
+    S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
+    R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
+{
+    /// An empty store for rays on `geometry` from a sensor with the given range limits (the
+    /// mapper's). Needs room for at least one scan and one ray.
+    pub fn new(geometry: GridGeometry, max_range_mm: u32, min_range_mm: u32, scans: S, rays: R) -> Result<Self> {
+        if scans.as_ref().is_empty() || rays.as_ref().is_empty() || rays.as_ref().len() > u32::MAX as usize {
+            return Err(Error::BufferSize { expected: 1, actual: 0 });
+        }
+        if max_range_mm == 0 || min_range_mm >= max_range_mm {
+            return Err(Error::InvalidModel);
+        }
+        Ok(RayStore {
+            geometry,
+            max_range_mm,
+            min_range_mm,
+            scans,
+            rays,
+            n_scans: 0,
+            n_rays: 0,
+            decimation: 1,
+            stats: StoreStats::default(),
+        })
+    }
+
+    /// The grid the rays live on.
+    pub fn geometry(&self) -> &GridGeometry {
+        &self.geometry
+    }
+
+    /// Maximum sensor range in mm (rays are traced this far).
+    pub fn max_range_mm(&self) -> u32 {
+        self.max_range_mm
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> StoreStats {
+        self.stats
+    }
+
+    /// Current decimation (1 = every beam is stored).
+    pub fn decimation(&self) -> u32 {
+        self.decimation
+    }
+
+    /// Stored scans.
+    pub fn scans(&self) -> &[StoredScan] {
+        self.scans.as_ref().get(..self.n_scans).unwrap_or(&[])
+    }
+
+    /// Stored rays (all scans, in order).
+    pub fn rays(&self) -> &[StoredRay] {
+        self.rays.as_ref().get(..self.n_rays).unwrap_or(&[])
+    }
+
+    /// Stored rays, mutable (the sampler updates the first-occupied caches).
+    pub fn rays_mut(&mut self) -> &mut [StoredRay] {
+        let n = self.n_rays;
+        self.rays.as_mut().get_mut(..n).unwrap_or(&mut [])
+    }
+
+    /// Capacity in rays.
+    pub fn ray_capacity(&self) -> usize {
+        self.rays.as_ref().len()
+    }
+
+    /// Geometry of a ray of `scan`.
+    pub fn ray_geometry(&self, pose: &Pose, angle: Angle) -> RayGeometry {
+        let start = self.geometry.cell_of_pose(pose);
+        let (x, y) = pose.beam_end(angle, self.max_range_mm);
+        let end = self.geometry.cell_of_point(x, y);
+        let ray = Ray::new(start, end);
+        let (dx, dy) = (i64::from(end.x) - i64::from(start.x), i64::from(end.y) - i64::from(start.y));
+        let n = ray.steps();
+        let step_q12 = if n == 0 { 4096 } else { ((length_q8(dx, dy) << 4) / n) as u32 };
+        RayGeometry { ray, step_q12 }
+    }
+
+    /// The cell of `pose` (the start of its rays).
+    pub fn start_cell(&self, pose: &Pose) -> CellCoord {
+        self.geometry.cell_of_pose(pose)
+    }
+
+    /// The measured range of a beam as a step index (1/16 steps) along its far-end ray.
+    fn z_q4(&self, geom: &RayGeometry, range_mm: u32) -> u16 {
+        let n = geom.ray.steps();
+        if n == 0 {
+            return 0;
+        }
+        // steps = range_cells / step_len = mm / cell_mm · 4096 / step_q12
+        let num = u128::from(range_mm) * 16 * 4096;
+        let den = u128::from(self.geometry.cell_mm()) * u128::from(geom.step_q12.max(1));
+        let z = (num / den).min(u128::from(n) * 16).min(u128::from(NONE - 1));
+        z as u16
+    }
+
+    /// Adds a scan's beams (every `decimation`-th), thinning first if the store is full.
+    /// Returns the index range of the new rays in [`RayStore::rays`] — their `first_occupied`
+    /// caches are [`NONE`] until the sampler fills them in.
+    pub fn add_scan(&mut self, pose: &Pose, beams: &[Beam]) -> core::ops::Range<usize> {
+        loop {
+            if self.n_scans >= self.scans.as_ref().len() {
+                if self.n_scans > 1 {
+                    self.thin_scans();
+                } else {
+                    // A one-scan store keeps only the newest scan.
+                    self.stats.rays_thinned = self.stats.rays_thinned.saturating_add(self.n_rays as u32);
+                    (self.n_scans, self.n_rays) = (0, 0);
+                }
+                continue;
+            }
+            let wanted = beams.len().div_ceil(self.decimation as usize);
+            if self.n_rays + wanted > self.rays.as_ref().len() {
+                // Terminates: each pass halves the stored rays and the rays wanted.
+                self.thin_rays();
+                continue;
+            }
+            break;
+        }
+        let first = self.n_rays;
+        for (i, beam) in beams.iter().enumerate() {
+            if i as u32 % self.decimation != 0 {
+                self.stats.rays_decimated = self.stats.rays_decimated.saturating_add(1);
+                continue;
+            }
+            let z_q4 = match beam.range {
+                Range::Hit(mm) if mm < self.min_range_mm => {
+                    self.stats.rays_invalid = self.stats.rays_invalid.saturating_add(1);
+                    continue;
+                }
+                Range::Hit(mm) if mm < self.max_range_mm => {
+                    let g = self.ray_geometry(pose, beam.angle);
+                    self.z_q4(&g, mm)
+                }
+                _ => NONE,
+            };
+            let n = self.n_rays;
+            let Some(slot) = self.rays.as_mut().get_mut(n) else { break };
+            *slot = StoredRay { angle: beam.angle, z_q4, first_occupied: NONE };
+            self.n_rays += 1;
+            self.stats.rays_added = self.stats.rays_added.saturating_add(1);
+        }
+        let len = (self.n_rays - first) as u32;
+        if let Some(slot) = self.scans.as_mut().get_mut(self.n_scans) {
+            *slot = StoredScan { pose: *pose, first: first as u32, len };
+            self.n_scans += 1;
+            self.stats.scans_added = self.stats.scans_added.saturating_add(1);
+        }
+        first..self.n_rays
+    }
+
+    /// Drops every second ray of every scan and doubles the decimation.
+    fn thin_rays(&mut self) {
+        let mut w = 0usize;
+        let n_scans = self.n_scans;
+        for s in 0..n_scans {
+            let Some(scan) = self.scans.as_ref().get(s).copied() else { break };
+            let start = w;
+            for k in 0..scan.len as usize {
+                let r = scan.first as usize + k;
+                if k % 2 == 0 {
+                    if let Some(ray) = self.rays.as_ref().get(r).copied() {
+                        if let Some(slot) = self.rays.as_mut().get_mut(w) {
+                            *slot = ray;
+                        }
+                        w += 1;
+                    }
+                } else {
+                    self.stats.rays_thinned = self.stats.rays_thinned.saturating_add(1);
+                }
+            }
+            if let Some(sc) = self.scans.as_mut().get_mut(s) {
+                sc.first = start as u32;
+                sc.len = (w - start) as u32;
+            }
+        }
+        self.n_rays = w;
+        self.decimation = self.decimation.saturating_mul(2);
+        self.stats.thinnings = self.stats.thinnings.saturating_add(1);
+        warn!("ray store full: thinned to every {}th beam", self.decimation);
+    }
+
+    /// Drops every second scan (the odd ones) and compacts the rays.
+    fn thin_scans(&mut self) {
+        let (mut ws, mut wr) = (0usize, 0usize);
+        for s in 0..self.n_scans {
+            let Some(scan) = self.scans.as_ref().get(s).copied() else { break };
+            if s % 2 == 1 {
+                self.stats.rays_thinned = self.stats.rays_thinned.saturating_add(scan.len);
+                continue;
+            }
+            let start = wr;
+            for k in 0..scan.len as usize {
+                if let Some(ray) = self.rays.as_ref().get(scan.first as usize + k).copied() {
+                    if let Some(slot) = self.rays.as_mut().get_mut(wr) {
+                        *slot = ray;
+                    }
+                    wr += 1;
+                }
+            }
+            if let Some(sc) = self.scans.as_mut().get_mut(ws) {
+                *sc = StoredScan { pose: scan.pose, first: start as u32, len: (wr - start) as u32 };
+            }
+            ws += 1;
+        }
+        self.n_scans = ws;
+        self.n_rays = wr;
+        self.stats.thinnings = self.stats.thinnings.saturating_add(1);
+        warn!("scan store full: kept every second scan ({} left)", ws);
+    }
+}
