@@ -3,6 +3,14 @@
 //! nothing here re-implements it.
 #![warn(missing_docs)]
 
+pub mod demo;
+pub mod eval;
+pub mod explore;
+pub mod lidar;
 pub mod metrics;
+pub mod prior;
+pub mod progress;
 pub mod render;
+pub mod report;
+pub mod sim;
 pub mod world;

@@ -53,7 +53,11 @@ pub struct ForwardModel {
 
 fn to_lsb(nats: f64) -> LogLik {
     let v = libm::round(nats / LSB_NATS);
-    if v < f64::from(i32::MIN / 4) { i32::MIN / 4 } else { v as i32 }
+    if v < f64::from(i32::MIN / 4) {
+        i32::MIN / 4
+    } else {
+        v as i32
+    }
 }
 
 /// Linear interpolation in a quarter-cell table at `q16` (1/16 cells); `beyond` past its end.
@@ -77,10 +81,13 @@ impl ForwardModel {
     /// Gaussian noise σ (cells) mixed with a uniform outlier weight `w` over a sensor of maximum
     /// range `max_range_cells`. The paper's setting is σ = 3, F = 75; `w` = 0.01 is our default.
     pub fn gaussian(sigma_cells: f64, outlier_weight: f64, max_range_cells: f64) -> Result<Self> {
-        if !(sigma_cells > 0.0 && sigma_cells.is_finite())
-            || !(0.0 < outlier_weight && outlier_weight < 1.0)
-            || !(max_range_cells >= 1.0 && max_range_cells.is_finite())
-        {
+        let valid = sigma_cells > 0.0
+            && sigma_cells.is_finite()
+            && 0.0 < outlier_weight
+            && outlier_weight < 1.0
+            && max_range_cells >= 1.0
+            && max_range_cells.is_finite();
+        if !valid {
             return Err(Error::InvalidModel);
         }
         let (s, w, f) = (sigma_cells, outlier_weight, max_range_cells);
@@ -89,7 +96,8 @@ impl ForwardModel {
         let mut no_return = [0; TABLE_LEN];
         for (i, (h, n)) in hit.iter_mut().zip(no_return.iter_mut()).enumerate() {
             let d = i as f64 / 4.0;
-            let gauss = libm::exp(-d * d / (2.0 * s * s)) / (s * libm::sqrt(2.0 * core::f64::consts::PI));
+            let gauss =
+                libm::exp(-d * d / (2.0 * s * s)) / (s * libm::sqrt(2.0 * core::f64::consts::PI));
             *h = to_lsb(libm::log((1.0 - w) * gauss + uniform));
             *n = to_lsb(libm::log((1.0 - w) * upper_tail(d / s) + uniform));
         }
@@ -166,7 +174,11 @@ impl ForwardModel {
     #[inline]
     pub fn no_return(&self, range_minus_f_q16: i32) -> LogLik {
         match self.kind {
-            Kind::Gaussian => interpolate(&self.no_return, range_minus_f_q16.max(0).unsigned_abs(), self.floor),
+            Kind::Gaussian => interpolate(
+                &self.no_return,
+                range_minus_f_q16.max(0).unsigned_abs(),
+                self.floor,
+            ),
             Kind::Pcsm => to_lsb(-1000.0),
         }
     }
@@ -187,9 +199,13 @@ mod tests {
         let m = ForwardModel::gaussian(3.0, 0.01, 75.0).unwrap();
         for q in [0i32, 1, 5, 12, 40, 100, -7, -100, 333] {
             let d = f64::from(q) / 16.0;
-            let p = 0.99 * (-(d * d) / 18.0).exp() / (3.0 * (2.0 * std::f64::consts::PI).sqrt()) + 0.01 / 75.0;
+            let p = 0.99 * (-(d * d) / 18.0).exp() / (3.0 * (2.0 * std::f64::consts::PI).sqrt())
+                + 0.01 / 75.0;
             // Table rounding (½ LSB) + interpolation (h²/8σ² ≈ 0.0009 nats ≈ 0.65 LSB).
-            assert!((f64::from(m.hit(q)) * LSB_NATS - p.ln()).abs() <= 2.0 * LSB_NATS, "q = {q}");
+            assert!(
+                (f64::from(m.hit(q)) * LSB_NATS - p.ln()).abs() <= 2.0 * LSB_NATS,
+                "q = {q}"
+            );
         }
         assert_eq!(m.hit(10_000), m.hit_clear());
         // Beyond ~6σ the Gaussian is negligible and the outlier floor dominates.
@@ -198,7 +214,10 @@ mod tests {
         // unlikely if it is well inside.
         assert!(m.no_return(0) > m.no_return(16 * 9));
         assert!(m.no_return_clear() > m.no_return(0));
-        assert!((f64::from(m.no_return(0)) * LSB_NATS - (0.99f64 * 0.5 + 0.01 / 75.0).ln()).abs() <= LSB_NATS);
+        assert!(
+            (f64::from(m.no_return(0)) * LSB_NATS - (0.99f64 * 0.5 + 0.01 / 75.0).ln()).abs()
+                <= LSB_NATS
+        );
     }
 
     #[test]

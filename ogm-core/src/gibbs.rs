@@ -114,8 +114,17 @@ impl ConstantCellPrior {
         if !(p > 0.0 && p < 1.0) {
             return Err(Error::InvalidProbability);
         }
-        let l = |q: f64| i32::from(LogOdds::from_nats(libm::log(q)).map(|l| l.0).unwrap_or(i16::MIN));
-        Ok(ConstantCellPrior { log_free: l(1.0 - p), log_occ: l(p) })
+        let l = |q: f64| {
+            i32::from(
+                LogOdds::from_nats(libm::log(q))
+                    .map(|l| l.0)
+                    .unwrap_or(i16::MIN),
+            )
+        };
+        Ok(ConstantCellPrior {
+            log_free: l(1.0 - p),
+            log_occ: l(p),
+        })
     }
 }
 
@@ -127,13 +136,68 @@ impl PatchPrior for ConstantCellPrior {
         0
     }
     fn candidates(&self, _border: u16, out: &mut [PatchCandidate]) -> usize {
-        let c = [PatchCandidate { config: 0, log_prior: self.log_free }, PatchCandidate { config: 1, log_prior: self.log_occ }];
+        let c = [
+            PatchCandidate {
+                config: 0,
+                log_prior: self.log_free,
+            },
+            PatchCandidate {
+                config: 1,
+                log_prior: self.log_occ,
+            },
+        ];
         let n = out.len().min(2);
         for (o, c) in out.iter_mut().zip(c) {
             *o = c;
         }
         n
     }
+}
+
+/// The data-driven L = 9 prior conditioned on the 16-cell border (the paper's "MCMC + border",
+/// the default): [`crate::prior::candidates`], with its documented fallback for unseen borders.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BorderPrior;
+
+impl PatchPrior for BorderPrior {
+    fn size(&self) -> u8 {
+        3
+    }
+    fn margin(&self) -> u8 {
+        2
+    }
+    fn candidates(&self, border: u16, out: &mut [PatchCandidate]) -> usize {
+        copy_candidates(crate::prior::candidates(border, out.len()), out)
+    }
+}
+
+/// The data-driven L = 9 prior without border (the paper's "MCMC, L = 9"): the most likely
+/// unconditioned configurations, top-k by mass.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct UnconditionedPrior;
+
+impl PatchPrior for UnconditionedPrior {
+    fn size(&self) -> u8 {
+        3
+    }
+    fn margin(&self) -> u8 {
+        1
+    }
+    fn candidates(&self, _border: u16, out: &mut [PatchCandidate]) -> usize {
+        copy_candidates(crate::prior::unconditioned(out.len()), out)
+    }
+}
+
+fn copy_candidates(c: crate::prior::Candidates, out: &mut [PatchCandidate]) -> usize {
+    let mut n = 0;
+    for (o, (config, lp)) in out.iter_mut().zip(c.configs().iter().zip(c.log_priors())) {
+        *o = PatchCandidate {
+            config: *config,
+            log_prior: i32::from(*lp),
+        };
+        n += 1;
+    }
+    n
 }
 
 /// Sampler settings.
@@ -242,6 +306,8 @@ pub struct Gibbs<P, B, C, L, N = u8> {
 /// one LSB is ln 2 / 512, `exp(−d·LSB) = 2^(−d/512)` exactly).
 const EXP2_TABLE: [u32; 512] = build_exp2_table();
 
+// Const-evaluated: an out-of-range index would fail compilation, not panic at run time.
+#[allow(clippy::indexing_slicing)]
 const fn build_exp2_table() -> [u32; 512] {
     let mut t = [0u32; 512];
     let mut i = 0;
@@ -299,13 +365,22 @@ where
     ) -> Result<Self> {
         let k = geometry.len();
         if sample.as_ref().len() < k.div_ceil(32) {
-            return Err(Error::BufferSize { expected: k.div_ceil(32), actual: sample.as_ref().len() });
+            return Err(Error::BufferSize {
+                expected: k.div_ceil(32),
+                actual: sample.as_ref().len(),
+            });
         }
         if counts.as_ref().len() < k {
-            return Err(Error::BufferSize { expected: k, actual: counts.as_ref().len() });
+            return Err(Error::BufferSize {
+                expected: k,
+                actual: counts.as_ref().len(),
+            });
         }
         if local.as_ref().is_empty() {
-            return Err(Error::BufferSize { expected: 1, actual: 0 });
+            return Err(Error::BufferSize {
+                expected: 1,
+                actual: 0,
+            });
         }
         let size = i32::from(prior.size());
         if !(size == 1 || size == 3) || config.max_candidates == 0 || config.tile_shift > 12 {
@@ -373,7 +448,10 @@ where
     /// Whether cell `index` is occupied in the current sample.
     #[inline]
     pub fn occupied(&self, index: usize) -> bool {
-        self.sample.as_ref().get(index / 32).is_some_and(|w| w & (1 << (index % 32)) != 0)
+        self.sample
+            .as_ref()
+            .get(index / 32)
+            .is_some_and(|w| w & (1 << (index % 32)) != 0)
     }
 
     #[inline]
@@ -418,7 +496,10 @@ where
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
         if map.len() != self.geometry.len() {
-            return Err(Error::BufferSize { expected: self.geometry.len(), actual: map.len() });
+            return Err(Error::BufferSize {
+                expected: self.geometry.len(),
+                actual: map.len(),
+            });
         }
         if store.geometry() != &self.geometry {
             return Err(Error::InvalidGeometry);
@@ -430,7 +511,13 @@ where
             }
         }
         self.counts.as_mut().fill(N::default());
-        (self.samples, self.halving, self.in_sweep, self.cursor, self.visit_left) = (0, false, 0, 0, 0);
+        (
+            self.samples,
+            self.halving,
+            self.in_sweep,
+            self.cursor,
+            self.visit_left,
+        ) = (0, false, 0, 0, 0);
         self.stats.sweeps = 0;
         self.refresh_rays(store, 0..usize::MAX);
         Ok(())
@@ -446,13 +533,17 @@ where
         self.visit_left = 0;
         let n_scans = store.scans().len();
         for s in 0..n_scans {
-            let Some(scan) = store.scans().get(s).copied() else { break };
+            let Some(scan) = store.scans().get(s).copied() else {
+                break;
+            };
             for k in 0..scan.len as usize {
                 let idx = scan.first as usize + k;
                 if idx < range.start || idx >= range.end {
                     continue;
                 }
-                let Some(stored) = store.rays().get(idx).copied() else { continue };
+                let Some(stored) = store.rays().get(idx).copied() else {
+                    continue;
+                };
                 let geom = store.ray_geometry(&scan.pose, stored.angle);
                 let f = self.first_occupied_from(&geom.ray, 0);
                 if let Some(r) = store.rays_mut().get_mut(idx) {
@@ -465,7 +556,9 @@ where
     /// First occupied in-grid step of `ray` at or after step `from`, or [`NONE`].
     fn first_occupied_from(&self, ray: &Ray, from: u64) -> u16 {
         let g = &self.geometry;
-        let Some(mut steps) = ray.clip(g.width(), g.height()) else { return NONE };
+        let Some(mut steps) = ray.clip(g.width(), g.height()) else {
+            return NONE;
+        };
         if steps.last < from {
             return NONE;
         }
@@ -509,7 +602,8 @@ where
         self.tile = (x0, y0, x1, y1);
         let size = i32::from(self.prior.size());
         let cells = ((x1 - x0 + 1) * (y1 - y0 + 1)) as u32;
-        self.visit_left = (cells / (size * size) as u32).max(1) * u32::from(self.config.visit_sweeps.max(1));
+        self.visit_left =
+            (cells / (size * size) as u32).max(1) * u32::from(self.config.visit_sweeps.max(1));
         self.stats.tile_visits += 1;
         let h = size / 2;
         self.gather(store, (x0 - h, y0 - h, x1 + h, y1 + h));
@@ -534,7 +628,9 @@ where
             }
             for k in 0..scan.len as usize {
                 let idx = scan.first as usize + k;
-                let Some(stored) = store.rays().get(idx) else { continue };
+                let Some(stored) = store.rays().get(idx) else {
+                    continue;
+                };
                 let geom = store.ray_geometry(&scan.pose, stored.angle);
                 if clip_box(&geom.ray, bx0, by0, bx1, by1).is_none() {
                     continue;
@@ -560,24 +656,39 @@ where
     /// The conditional of Eq. 1 for the patch centred at `centre` as the sampler computes it
     /// (fixed point), normalised: writes (config, probability) into `out` and returns how many.
     /// Diagnostic and test API; it ends the current tile visit.
-    pub fn conditional<S, R>(&mut self, store: &RayStore<S, R>, centre: CellCoord, out: &mut [(u16, f64)]) -> usize
+    pub fn conditional<S, R>(
+        &mut self,
+        store: &RayStore<S, R>,
+        centre: CellCoord,
+        out: &mut [(u16, f64)],
+    ) -> usize
     where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
         let h = i32::from(self.prior.size()) / 2;
-        self.gather(store, (centre.x - h, centre.y - h, centre.x + h, centre.y + h));
+        self.gather(
+            store,
+            (centre.x - h, centre.y - h, centre.x + h, centre.y + h),
+        );
         self.visit_left = 0;
         let (_, border) = self.config_and_border(centre);
         let mut cands = [PatchCandidate::default(); MAX_CANDIDATES];
-        let k = usize::from(self.config.max_candidates).min(MAX_CANDIDATES).min(out.len());
-        let n = self.prior.candidates(border, cands.get_mut(..k).unwrap_or(&mut [])).min(k);
+        let k = usize::from(self.config.max_candidates)
+            .min(MAX_CANDIDATES)
+            .min(out.len());
+        let n = self
+            .prior
+            .candidates(border, cands.get_mut(..k).unwrap_or(&mut []))
+            .min(k);
         let cands = cands.get(..n).unwrap_or(&[]);
         let mut w = [0i32; MAX_CANDIDATES];
         self.log_weights(store, centre, cands, &mut w);
         let best = w.iter().take(n).copied().max().unwrap_or(0);
         let q: [u32; MAX_CANDIDATES] = core::array::from_fn(|j| {
-            w.get(j).filter(|_| j < n).map_or(0, |wj| weight_q16(best.saturating_sub(*wj).unsigned_abs()))
+            w.get(j)
+                .filter(|_| j < n)
+                .map_or(0, |wj| weight_q16(best.saturating_sub(*wj).unsigned_abs()))
         });
         let total: u64 = q.iter().map(|&x| u64::from(x)).sum();
         for ((o, c), qi) in out.iter_mut().zip(cands).zip(q) {
@@ -592,7 +703,10 @@ where
         let mut win = 0u32;
         for dy in 0..side {
             for dx in 0..side {
-                if self.occupied_at(CellCoord { x: c.x - r + dx, y: c.y - r + dy }) {
+                if self.occupied_at(CellCoord {
+                    x: c.x - r + dx,
+                    y: c.y - r + dy,
+                }) {
                     win |= 1 << (dy * side + dx);
                 }
             }
@@ -610,7 +724,10 @@ where
             (_, 0) => (u16::from(self.occupied_at(c)), 0),
             _ => {
                 let w = self.window(c, 1) as u16;
-                (u16::from(crate::patch::centre_of(w)), u16::from(crate::patch::neighbours_of(w)))
+                (
+                    u16::from(crate::patch::centre_of(w)),
+                    u16::from(crate::patch::neighbours_of(w)),
+                )
             }
         }
     }
@@ -633,7 +750,10 @@ where
         } else {
             let mut cands = [PatchCandidate::default(); MAX_CANDIDATES];
             let k = usize::from(self.config.max_candidates).min(MAX_CANDIDATES);
-            let n = self.prior.candidates(border, cands.get_mut(..k).unwrap_or(&mut [])).min(k);
+            let n = self
+                .prior
+                .candidates(border, cands.get_mut(..k).unwrap_or(&mut []))
+                .min(k);
             match n {
                 0 => current,
                 1 => {
@@ -655,8 +775,13 @@ where
     }
 
     /// Eq. 1 in the log domain: log-prior plus Σ over crossing rays of log p(z | f(config)).
-    fn log_weights<S, R>(&mut self, store: &RayStore<S, R>, centre: CellCoord, cands: &[PatchCandidate], w: &mut [i32])
-    where
+    fn log_weights<S, R>(
+        &mut self,
+        store: &RayStore<S, R>,
+        centre: CellCoord,
+        cands: &[PatchCandidate],
+        w: &mut [i32],
+    ) where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
@@ -664,8 +789,12 @@ where
             *wi = c.log_prior;
         }
         for j in 0..self.n_local {
-            let Some(lr) = self.local.as_ref().get(j).copied() else { break };
-            let Some(cross) = self.crossing(store, &lr, centre) else { continue };
+            let Some(lr) = self.local.as_ref().get(j).copied() else {
+                break;
+            };
+            let Some(cross) = self.crossing(store, &lr, centre) else {
+                continue;
+            };
             self.stats.rays_evaluated += 1;
             for (wi, c) in w.iter_mut().zip(cands) {
                 let f = cross.first_in_patch(c.config).unwrap_or(cross.f_after);
@@ -675,7 +804,12 @@ where
     }
 
     /// How `lr` crosses the patch at `centre`, if the patch can change its first occupied cell.
-    fn crossing<S, R>(&self, store: &RayStore<S, R>, lr: &LocalRay, centre: CellCoord) -> Option<Crossing>
+    fn crossing<S, R>(
+        &self,
+        store: &RayStore<S, R>,
+        lr: &LocalRay,
+        centre: CellCoord,
+    ) -> Option<Crossing>
     where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
@@ -683,11 +817,18 @@ where
         let h = i32::from(self.prior.size()) / 2;
         let ray = Ray::new(lr.start, lr.end);
         let steps = clip_box(&ray, centre.x - h, centre.y - h, centre.x + h, centre.y + h)?;
-        let f = store.rays().get(lr.index as usize).map_or(NONE, |r| r.first_occupied);
+        let f = store
+            .rays()
+            .get(lr.index as usize)
+            .map_or(NONE, |r| r.first_occupied);
         if f != NONE && u64::from(f) < steps.first {
             return None; // occupied before the patch: the patch cannot matter
         }
-        let f_after = if f != NONE && u64::from(f) > steps.last { f } else { self.first_occupied_from(&ray, steps.last + 1) };
+        let f_after = if f != NONE && u64::from(f) > steps.last {
+            f
+        } else {
+            self.first_occupied_from(&ray, steps.last + 1)
+        };
         let size = h * 2 + 1;
         let mut cells = [(0u16, 0u16); 5];
         let mut n_cells = 0;
@@ -699,7 +840,12 @@ where
                 n_cells += 1;
             }
         }
-        Some(Crossing { cells, n_cells, f_after, n: ray.steps().min(u64::from(NONE - 1)) as u16 })
+        Some(Crossing {
+            cells,
+            n_cells,
+            f_after,
+            n: ray.steps().min(u64::from(NONE - 1)) as u16,
+        })
     }
 
     /// log p(z | f) for a local ray; `n` is the far end's step (max range).
@@ -712,7 +858,9 @@ where
             }
             // (F − f) steps → 1/16 cells: × step (Q12) × 16.
             let q = ((i64::from(n) - i64::from(f)) * k + 128) >> 8;
-            return self.forward.no_return(q.clamp(0, i64::from(i32::MAX)) as i32);
+            return self
+                .forward
+                .no_return(q.clamp(0, i64::from(i32::MAX)) as i32);
         }
         if f == NONE {
             return self.forward.hit_clear();
@@ -720,7 +868,8 @@ where
         // (z − f) in 1/16 steps → 1/16 cells: × step (Q12) / 4096.
         let d = i64::from(lr.z_q4) - 16 * i64::from(f);
         let q = (d * k + if d >= 0 { 2048 } else { -2048 }) / 4096;
-        self.forward.hit(q.clamp(-i64::from(i32::MAX), i64::from(i32::MAX)) as i32)
+        self.forward
+            .hit(q.clamp(-i64::from(i32::MAX), i64::from(i32::MAX)) as i32)
     }
 
     /// Draws a candidate with probability ∝ exp(w).
@@ -750,8 +899,12 @@ where
     {
         // First the rays (their crossing is computed against the old sample)…
         for j in 0..self.n_local {
-            let Some(lr) = self.local.as_ref().get(j).copied() else { break };
-            let Some(cross) = self.crossing(store, &lr, centre) else { continue };
+            let Some(lr) = self.local.as_ref().get(j).copied() else {
+                break;
+            };
+            let Some(cross) = self.crossing(store, &lr, centre) else {
+                continue;
+            };
             let f = cross.first_in_patch(config).unwrap_or(cross.f_after);
             if let Some(r) = store.rays_mut().get_mut(lr.index as usize) {
                 r.first_occupied = f;
@@ -762,7 +915,10 @@ where
         let h = size / 2;
         for py in 0..size {
             for px in 0..size {
-                let c = CellCoord { x: centre.x - h + px, y: centre.y - h + py };
+                let c = CellCoord {
+                    x: centre.x - h + px,
+                    y: centre.y - h + py,
+                };
                 if let Some(i) = self.geometry.index(c) {
                     self.set_occupied(i, config & (1 << (py * size + px)) != 0);
                 }
@@ -786,7 +942,11 @@ where
                 let bit = u32::from(self.occupied(self.cursor));
                 let halving = self.halving;
                 if let Some(c) = self.counts.as_mut().get_mut(self.cursor) {
-                    *c = N::set(if halving { c.get() / 2 + bit } else { c.get().saturating_add(bit) });
+                    *c = N::set(if halving {
+                        c.get() / 2 + bit
+                    } else {
+                        c.get().saturating_add(bit)
+                    });
                 }
             }
             self.cursor += 1;
@@ -794,7 +954,11 @@ where
         self.in_sweep += 1;
         if self.in_sweep >= self.sweep_len {
             if counting {
-                self.samples = if self.halving { self.samples / 2 + 1 } else { (self.samples + 1).min(N::MAX) };
+                self.samples = if self.halving {
+                    self.samples / 2 + 1
+                } else {
+                    (self.samples + 1).min(N::MAX)
+                };
                 self.halving = false;
             }
             self.in_sweep = 0;
@@ -820,7 +984,11 @@ impl Crossing {
     /// First step inside the patch occupied under `config`.
     #[inline]
     fn first_in_patch(&self, config: u16) -> Option<u16> {
-        self.cells.iter().take(self.n_cells).find(|(_, bit)| config & (1 << bit) != 0).map(|(s, _)| *s)
+        self.cells
+            .iter()
+            .take(self.n_cells)
+            .find(|(_, bit)| config & (1 << bit) != 0)
+            .map(|(s, _)| *s)
     }
 }
 
@@ -828,8 +996,20 @@ impl Crossing {
 fn clip_box(ray: &Ray, x0: i32, y0: i32, x1: i32, y1: i32) -> Option<crate::ray::Steps> {
     let s = ray.start();
     let e = ray.cell_at(ray.steps());
-    let shifted = Ray::new(CellCoord { x: s.x - x0, y: s.y - y0 }, CellCoord { x: e.x - x0, y: e.y - y0 });
-    let (w, h) = (u16::try_from(x1 - x0 + 1).ok()?, u16::try_from(y1 - y0 + 1).ok()?);
+    let shifted = Ray::new(
+        CellCoord {
+            x: s.x - x0,
+            y: s.y - y0,
+        },
+        CellCoord {
+            x: e.x - x0,
+            y: e.y - y0,
+        },
+    );
+    let (w, h) = (
+        u16::try_from(x1 - x0 + 1).ok()?,
+        u16::try_from(y1 - y0 + 1).ok()?,
+    );
     shifted.clip(w, h)
 }
 

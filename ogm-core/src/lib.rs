@@ -35,12 +35,18 @@ mod fmt;
 pub mod angle;
 pub mod error;
 pub mod fixed;
+pub mod forward_model;
 pub mod geometry;
+pub mod gibbs;
 pub mod grid;
 pub mod hal;
 pub mod mapper;
+pub mod patch;
 pub mod pipeline;
+pub mod prior;
+mod prior_table;
 pub mod ray;
+pub mod ray_store;
 #[cfg(feature = "reference")]
 pub mod reference;
 pub mod sensor_model;

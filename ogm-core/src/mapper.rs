@@ -207,13 +207,12 @@ fn classify_beam(
         let Some(mut steps) = ray.clip(g.width(), g.height()) else {
             continue;
         };
-        if hit {
-            if steps.last == ray.steps() {
-                if steps.last == 0 || steps.first == steps.last {
-                    continue;
-                }
-                steps.last -= 1;
+        // A hit's end cell is not freed (it was hit in pass 1).
+        if hit && steps.last == ray.steps() {
+            if steps.last == 0 || steps.first == steps.last {
+                continue;
             }
+            steps.last -= 1;
         }
         ray.for_each_index(steps, g.width(), |_, i| {
             if marks.first_touch(i) {

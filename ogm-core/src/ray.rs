@@ -196,7 +196,12 @@ impl Ray {
     /// The first step in `steps` (from [`Ray::clip`] with the same `width`) whose row-major
     /// index satisfies `pred`, walking in ray order and stopping there.
     #[inline]
-    pub fn find_step(&self, steps: Steps, width: u16, mut pred: impl FnMut(usize) -> bool) -> Option<u64> {
+    pub fn find_step(
+        &self,
+        steps: Steps,
+        width: u16,
+        mut pred: impl FnMut(usize) -> bool,
+    ) -> Option<u64> {
         let mut found = None;
         self.walk(steps, width, |i, idx| {
             if pred(idx) {

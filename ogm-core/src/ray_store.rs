@@ -101,9 +101,21 @@ where
 {
     /// An empty store for rays on `geometry` from a sensor with the given range limits (the
     /// mapper's). Needs room for at least one scan and one ray.
-    pub fn new(geometry: GridGeometry, max_range_mm: u32, min_range_mm: u32, scans: S, rays: R) -> Result<Self> {
-        if scans.as_ref().is_empty() || rays.as_ref().is_empty() || rays.as_ref().len() > u32::MAX as usize {
-            return Err(Error::BufferSize { expected: 1, actual: 0 });
+    pub fn new(
+        geometry: GridGeometry,
+        max_range_mm: u32,
+        min_range_mm: u32,
+        scans: S,
+        rays: R,
+    ) -> Result<Self> {
+        if scans.as_ref().is_empty()
+            || rays.as_ref().is_empty()
+            || rays.as_ref().len() > u32::MAX as usize
+        {
+            return Err(Error::BufferSize {
+                expected: 1,
+                actual: 0,
+            });
         }
         if max_range_mm == 0 || min_range_mm >= max_range_mm {
             return Err(Error::InvalidModel);
@@ -168,9 +180,14 @@ where
         let (x, y) = pose.beam_end(angle, self.max_range_mm);
         let end = self.geometry.cell_of_point(x, y);
         let ray = Ray::new(start, end);
-        let (dx, dy) = (i64::from(end.x) - i64::from(start.x), i64::from(end.y) - i64::from(start.y));
+        let (dx, dy) = (
+            i64::from(end.x) - i64::from(start.x),
+            i64::from(end.y) - i64::from(start.y),
+        );
         let n = ray.steps();
-        let step_q12 = if n == 0 { 4096 } else { ((length_q8(dx, dy) << 4) / n) as u32 };
+        let step_q12 = (length_q8(dx, dy) << 4)
+            .checked_div(n)
+            .map_or(4096, |v| v as u32);
         RayGeometry { ray, step_q12 }
     }
 
@@ -188,7 +205,9 @@ where
         // steps = range_cells / step_len = mm / cell_mm · 4096 / step_q12
         let num = u128::from(range_mm) * 16 * 4096;
         let den = u128::from(self.geometry.cell_mm()) * u128::from(geom.step_q12.max(1));
-        let z = (num / den).min(u128::from(n) * 16).min(u128::from(NONE - 1));
+        let z = (num / den)
+            .min(u128::from(n) * 16)
+            .min(u128::from(NONE - 1));
         z as u16
     }
 
@@ -202,7 +221,8 @@ where
                     self.thin_scans();
                 } else {
                     // A one-scan store keeps only the newest scan.
-                    self.stats.rays_thinned = self.stats.rays_thinned.saturating_add(self.n_rays as u32);
+                    self.stats.rays_thinned =
+                        self.stats.rays_thinned.saturating_add(self.n_rays as u32);
                     (self.n_scans, self.n_rays) = (0, 0);
                 }
                 continue;
@@ -233,14 +253,24 @@ where
                 _ => NONE,
             };
             let n = self.n_rays;
-            let Some(slot) = self.rays.as_mut().get_mut(n) else { break };
-            *slot = StoredRay { angle: beam.angle, z_q4, first_occupied: NONE };
+            let Some(slot) = self.rays.as_mut().get_mut(n) else {
+                break;
+            };
+            *slot = StoredRay {
+                angle: beam.angle,
+                z_q4,
+                first_occupied: NONE,
+            };
             self.n_rays += 1;
             self.stats.rays_added = self.stats.rays_added.saturating_add(1);
         }
         let len = (self.n_rays - first) as u32;
         if let Some(slot) = self.scans.as_mut().get_mut(self.n_scans) {
-            *slot = StoredScan { pose: *pose, first: first as u32, len };
+            *slot = StoredScan {
+                pose: *pose,
+                first: first as u32,
+                len,
+            };
             self.n_scans += 1;
             self.stats.scans_added = self.stats.scans_added.saturating_add(1);
         }
@@ -252,7 +282,9 @@ where
         let mut w = 0usize;
         let n_scans = self.n_scans;
         for s in 0..n_scans {
-            let Some(scan) = self.scans.as_ref().get(s).copied() else { break };
+            let Some(scan) = self.scans.as_ref().get(s).copied() else {
+                break;
+            };
             let start = w;
             for k in 0..scan.len as usize {
                 let r = scan.first as usize + k;
@@ -275,14 +307,19 @@ where
         self.n_rays = w;
         self.decimation = self.decimation.saturating_mul(2);
         self.stats.thinnings = self.stats.thinnings.saturating_add(1);
-        warn!("ray store full: thinned to every {}th beam", self.decimation);
+        warn!(
+            "ray store full: thinned to every {}th beam",
+            self.decimation
+        );
     }
 
     /// Drops every second scan (the odd ones) and compacts the rays.
     fn thin_scans(&mut self) {
         let (mut ws, mut wr) = (0usize, 0usize);
         for s in 0..self.n_scans {
-            let Some(scan) = self.scans.as_ref().get(s).copied() else { break };
+            let Some(scan) = self.scans.as_ref().get(s).copied() else {
+                break;
+            };
             if s % 2 == 1 {
                 self.stats.rays_thinned = self.stats.rays_thinned.saturating_add(scan.len);
                 continue;
@@ -297,7 +334,11 @@ where
                 }
             }
             if let Some(sc) = self.scans.as_mut().get_mut(ws) {
-                *sc = StoredScan { pose: scan.pose, first: start as u32, len: (wr - start) as u32 };
+                *sc = StoredScan {
+                    pose: scan.pose,
+                    first: start as u32,
+                    len: (wr - start) as u32,
+                };
             }
             ws += 1;
         }

@@ -3,11 +3,15 @@
 
 use ogm_core::fixed::LSB_NATS;
 use ogm_core::forward_model::ForwardModel;
-use ogm_core::gibbs::{ConstantCellPrior, Gibbs, LocalRay, PatchCandidate, PatchPrior, SamplerConfig};
+use ogm_core::gibbs::{
+    ConstantCellPrior, Gibbs, LocalRay, PatchCandidate, PatchPrior, SamplerConfig,
+};
 use ogm_core::mapper::marks_len;
 use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
 use ogm_core::reference::{ReferenceGibbs, ReferenceModel};
-use ogm_core::{Angle, Beam, CellCoord, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose, Range};
+use ogm_core::{
+    Angle, Beam, CellCoord, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose, Range,
+};
 
 type Store = RayStore<Vec<StoredScan>, Vec<StoredRay>>;
 type Sampler<P> = Gibbs<P, Vec<u32>, Vec<u32>, Vec<LocalRay>, u32>;
@@ -15,11 +19,32 @@ type Sampler<P> = Gibbs<P, Vec<u32>, Vec<u32>, Vec<LocalRay>, u32>;
 const CELL: u32 = 100;
 
 fn store(g: GridGeometry, max_range_mm: u32) -> Store {
-    RayStore::new(g, max_range_mm, 0, vec![StoredScan::default(); 256], vec![StoredRay::default(); 8192]).unwrap()
+    RayStore::new(
+        g,
+        max_range_mm,
+        0,
+        vec![StoredScan::default(); 256],
+        vec![StoredRay::default(); 8192],
+    )
+    .unwrap()
 }
 
-fn sampler<P: PatchPrior>(g: GridGeometry, prior: P, fm: ForwardModel, cfg: SamplerConfig) -> Sampler<P> {
-    Gibbs::new(g, prior, fm, cfg, vec![0; g.len().div_ceil(32)], vec![0; g.len()], vec![LocalRay::default(); 4096]).unwrap()
+fn sampler<P: PatchPrior>(
+    g: GridGeometry,
+    prior: P,
+    fm: ForwardModel,
+    cfg: SamplerConfig,
+) -> Sampler<P> {
+    Gibbs::new(
+        g,
+        prior,
+        fm,
+        cfg,
+        vec![0; g.len().div_ceil(32)],
+        vec![0; g.len()],
+        vec![LocalRay::default(); 4096],
+    )
+    .unwrap()
 }
 
 fn kl(p: f64, q: f64) -> f64 {
@@ -37,9 +62,19 @@ const READINGS: [f64; 8] = [9.6, 10.4, 11.1, 8.7, 10.0, 12.2, 9.3, 10.8];
 fn one_d() -> (GridGeometry, Store, ForwardModel) {
     let g = GridGeometry::new(K as u16, 1, CELL, 0, 0).unwrap();
     let mut st = store(g, 15 * CELL);
-    let pose = Pose { x_mm: 50, y_mm: 50, heading: Angle::ZERO };
+    let pose = Pose {
+        x_mm: 50,
+        y_mm: 50,
+        heading: Angle::ZERO,
+    };
     for z in READINGS {
-        st.add_scan(&pose, &[Beam { angle: Angle::ZERO, range: Range::Hit((z * f64::from(CELL)).round() as u32) }]);
+        st.add_scan(
+            &pose,
+            &[Beam {
+                angle: Angle::ZERO,
+                range: Range::Hit((z * f64::from(CELL)).round() as u32),
+            }],
+        );
     }
     (g, st, ForwardModel::gaussian(2.0, 0.01, 15.0).unwrap())
 }
@@ -74,31 +109,53 @@ fn exact_marginals(st: &Store, fm: &ForwardModel, log_free: f64, log_occ: f64) -
     }
     let max = logp.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let z: f64 = logp.iter().map(|l| (l - max).exp()).sum();
-    (0..K).map(|k| logp.iter().enumerate().filter(|(m, _)| m & (1 << k) != 0).map(|(_, l)| (l - max).exp()).sum::<f64>() / z).collect()
+    (0..K)
+        .map(|k| {
+            logp.iter()
+                .enumerate()
+                .filter(|(m, _)| m & (1 << k) != 0)
+                .map(|(_, l)| (l - max).exp())
+                .sum::<f64>()
+                / z
+        })
+        .collect()
 }
 
 #[test]
 fn l1_sampler_converges_to_the_exact_1d_posterior() {
     let (g, mut st, fm) = one_d();
     let prior = ConstantCellPrior::new(0.3).unwrap();
-    let cfg = SamplerConfig { burn_in_sweeps: 0, p_rand_patch: 0.0, seed: 7, ..SamplerConfig::default() };
+    let cfg = SamplerConfig {
+        burn_in_sweeps: 0,
+        p_rand_patch: 0.0,
+        seed: 7,
+        ..SamplerConfig::default()
+    };
     let mut s = sampler(g, prior, fm.clone(), cfg);
     s.reset(&[LogOdds::ZERO; K], &mut st).unwrap();
     let lsb = |p: f64| f64::from(LogOdds::from_nats(p.ln()).unwrap().0) * LSB_NATS;
     let exact = exact_marginals(&st, &fm, lsb(0.7), lsb(0.3));
     // The wall region is uncertain, the cells before it are free, behind it at the prior.
-    assert!(exact[3] < 0.01 && exact[10] > 0.3 && (exact[15] - 0.3).abs() < 0.05, "{exact:?}");
+    assert!(
+        exact[3] < 0.01 && exact[10] > 0.3 && (exact[15] - 0.3).abs() < 0.05,
+        "{exact:?}"
+    );
     let mut kls = Vec::new();
     let mut done = 0u32;
     for sweeps in [30u32, 300, 3000, 30000] {
         s.step(&mut st, (sweeps - done) * K as u32);
         done = sweeps;
-        let total: f64 = (0..K).map(|k| kl(exact[k], f64::from(s.marginal(k).unwrap()))).sum();
+        let total: f64 = (0..K)
+            .map(|k| kl(exact[k], f64::from(s.marginal(k).unwrap())))
+            .sum();
         kls.push(total);
     }
     eprintln!("summed KL after 30/300/3000/30000 sweeps: {kls:?}");
     assert!(kls[3] <= 0.01, "KL {kls:?}");
-    assert!(kls[0] > kls[2] && kls[1] > kls[3], "KL should decrease: {kls:?}");
+    assert!(
+        kls[0] > kls[2] && kls[1] > kls[3],
+        "KL should decrease: {kls:?}"
+    );
 }
 
 /// A small synthetic L = 9 prior: four shapes with fixed log-priors regardless of the border.
@@ -114,10 +171,22 @@ impl PatchPrior for ShapesPrior {
         // Border-dependent order/weights so the border path is exercised too.
         let bias = if border.count_ones() > 8 { 600 } else { -600 };
         let c = [
-            PatchCandidate { config: 0, log_prior: -200 },
-            PatchCandidate { config: 0x1FF, log_prior: -2000 + bias },
-            PatchCandidate { config: 0b000_111_000, log_prior: -900 },
-            PatchCandidate { config: 0b010_010_010, log_prior: -1100 },
+            PatchCandidate {
+                config: 0,
+                log_prior: -200,
+            },
+            PatchCandidate {
+                config: 0x1FF,
+                log_prior: -2000 + bias,
+            },
+            PatchCandidate {
+                config: 0b000_111_000,
+                log_prior: -900,
+            },
+            PatchCandidate {
+                config: 0b010_010_010,
+                log_prior: -1100,
+            },
         ];
         let n = out.len().min(4);
         out[..n].copy_from_slice(&c[..n]);
@@ -131,10 +200,15 @@ fn two_d() -> (GridGeometry, Store, Vec<LogOdds>) {
     let max = 20 * CELL;
     let mut st = store(g, max);
     let grid = LogOddsGrid::new(g, vec![LogOdds::ZERO; g.len()]).unwrap();
-    let mut mapper = Mapper::new(grid, vec![0; marks_len(g.len())], MapperConfig::new(max)).unwrap();
+    let mut mapper =
+        Mapper::new(grid, vec![0; marks_len(g.len())], MapperConfig::new(max)).unwrap();
     // Wall: x = 15..17 (cells), y = 4..20; readings are distances to x = 1500 mm.
     for (px, py) in [(500, 1200), (600, 600), (900, 1900)] {
-        let pose = Pose { x_mm: px, y_mm: py, heading: Angle::ZERO };
+        let pose = Pose {
+            x_mm: px,
+            y_mm: py,
+            heading: Angle::ZERO,
+        };
         let beams: Vec<Beam> = (0..48)
             .map(|i| {
                 let a = Angle((i * 65536 / 48) as u16);
@@ -142,7 +216,11 @@ fn two_d() -> (GridGeometry, Store, Vec<LogOdds>) {
                 let range = if th.cos() > 0.05 {
                     let d = (1500.0 - f64::from(px)) / th.cos();
                     let y = f64::from(py) + d * th.sin();
-                    if (400.0..2000.0).contains(&y) && d < f64::from(max) { Range::Hit(d.round() as u32) } else { Range::NoReturn }
+                    if (400.0..2000.0).contains(&y) && d < f64::from(max) {
+                        Range::Hit(d.round() as u32)
+                    } else {
+                        Range::NoReturn
+                    }
                 } else {
                     Range::NoReturn
                 };
@@ -159,17 +237,37 @@ fn two_d() -> (GridGeometry, Store, Vec<LogOdds>) {
 fn fixed_point_conditional_matches_f64_reference() {
     let (g, mut st, map) = two_d();
     let fm = ForwardModel::gaussian(3.0, 0.01, 20.0).unwrap();
-    let model = ReferenceModel::Gaussian { sigma: 3.0, w: 0.01, max_range: 20.0 };
+    let model = ReferenceModel::Gaussian {
+        sigma: 3.0,
+        w: 0.01,
+        max_range: 20.0,
+    };
     let mut worst = 0f64;
     for seed in 0..6u64 {
-        let cfg = SamplerConfig { seed, ..SamplerConfig::default() };
+        let cfg = SamplerConfig {
+            seed,
+            ..SamplerConfig::default()
+        };
         let mut s = sampler(g, ShapesPrior, fm.clone(), cfg);
         s.reset(&map, &mut st).unwrap();
         s.step(&mut st, 500 * (seed as u32 + 1)); // wander to a random state
-        // The reference starts from the fixed sampler's current sample.
-        let state: Vec<LogOdds> = (0..g.len()).map(|i| LogOdds(if s.occupied(i) { 1 } else { -1 })).collect();
+                                                  // The reference starts from the fixed sampler's current sample.
+        let state: Vec<LogOdds> = (0..g.len())
+            .map(|i| LogOdds(if s.occupied(i) { 1 } else { -1 }))
+            .collect();
         let (mut sample, mut counts) = (vec![0u8; g.len()], vec![0u64; g.len()]);
-        let mut r = ReferenceGibbs::new(g, ShapesPrior, model, 0.0, &state, LogOdds::ZERO, &mut sample, &mut counts, 1).unwrap();
+        let mut r = ReferenceGibbs::new(
+            g,
+            ShapesPrior,
+            model,
+            0.0,
+            &state,
+            LogOdds::ZERO,
+            &mut sample,
+            &mut counts,
+            1,
+        )
+        .unwrap();
         for cy in 2..22 {
             for cx in 2..22 {
                 let c = CellCoord { x: cx, y: cy };
@@ -193,14 +291,33 @@ fn fixed_point_conditional_matches_f64_reference() {
 fn fixed_point_marginals_match_f64_reference_sampler() {
     let (g, mut st, map) = two_d();
     let fm = ForwardModel::gaussian(3.0, 0.01, 20.0).unwrap();
-    let model = ReferenceModel::Gaussian { sigma: 3.0, w: 0.01, max_range: 20.0 };
-    let cfg = SamplerConfig { seed: 3, burn_in_sweeps: 20, ..SamplerConfig::default() };
+    let model = ReferenceModel::Gaussian {
+        sigma: 3.0,
+        w: 0.01,
+        max_range: 20.0,
+    };
+    let cfg = SamplerConfig {
+        seed: 3,
+        burn_in_sweeps: 20,
+        ..SamplerConfig::default()
+    };
     let mut s = sampler(g, ShapesPrior, fm, cfg);
     s.reset(&map, &mut st).unwrap();
     let sweep = (g.len() as u32).div_ceil(9);
     s.step(&mut st, sweep * 1020);
     let (mut sample, mut counts) = (vec![0u8; g.len()], vec![0u64; g.len()]);
-    let mut r = ReferenceGibbs::new(g, ShapesPrior, model, 0.001, &map, LogOdds::ZERO, &mut sample, &mut counts, 9).unwrap();
+    let mut r = ReferenceGibbs::new(
+        g,
+        ShapesPrior,
+        model,
+        0.001,
+        &map,
+        LogOdds::ZERO,
+        &mut sample,
+        &mut counts,
+        9,
+    )
+    .unwrap();
     for i in 0..1020 {
         r.sweep(&st, i >= 20);
     }

@@ -32,15 +32,25 @@ pub enum ReferenceModel {
 impl ReferenceModel {
     /// log p(z | f) with distances in cells; `f = None` means no occupied cell within range.
     /// `z = None` is a no-return reading and `range_minus_f` is F − f in cells.
-    pub fn log_lik(&self, z_minus_f: Option<f64>, range_minus_f: Option<f64>, no_return: bool) -> f64 {
+    pub fn log_lik(
+        &self,
+        z_minus_f: Option<f64>,
+        range_minus_f: Option<f64>,
+        no_return: bool,
+    ) -> f64 {
         match *self {
-            ReferenceModel::Gaussian { sigma, w, max_range } => {
+            ReferenceModel::Gaussian {
+                sigma,
+                w,
+                max_range,
+            } => {
                 let u = w / max_range;
                 if no_return {
                     match range_minus_f {
                         None => libm::log(1.0 - w + u),
                         Some(d) => {
-                            let tail = 0.5 * libm::erfc(d.max(0.0) / sigma / core::f64::consts::SQRT_2);
+                            let tail =
+                                0.5 * libm::erfc(d.max(0.0) / sigma / core::f64::consts::SQRT_2);
                             libm::log((1.0 - w) * tail + u)
                         }
                     }
@@ -95,13 +105,25 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
     ) -> Result<Self> {
         let k = geometry.len();
         if map.len() != k || sample.len() != k || counts.len() != k {
-            return Err(Error::BufferSize { expected: k, actual: map.len().min(sample.len()).min(counts.len()) });
+            return Err(Error::BufferSize {
+                expected: k,
+                actual: map.len().min(sample.len()).min(counts.len()),
+            });
         }
         for (s, l) in sample.iter_mut().zip(map) {
             *s = u8::from(*l > threshold);
         }
         counts.fill(0);
-        Ok(ReferenceGibbs { geometry, prior, model, p_rand, sample, counts, samples: 0, rng: Xoshiro256PlusPlus::seed_from_u64(seed) })
+        Ok(ReferenceGibbs {
+            geometry,
+            prior,
+            model,
+            p_rand,
+            sample,
+            counts,
+            samples: 0,
+            rng: Xoshiro256PlusPlus::seed_from_u64(seed),
+        })
     }
 
     fn uniform(&mut self) -> f64 {
@@ -109,7 +131,10 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
     }
 
     fn occ(&self, c: CellCoord) -> bool {
-        self.geometry.index(c).and_then(|i| self.sample.get(i)).is_some_and(|&v| v != 0)
+        self.geometry
+            .index(c)
+            .and_then(|i| self.sample.get(i))
+            .is_some_and(|&v| v != 0)
     }
 
     /// One sweep: K/L updates at uniformly random patch centres; then accumulates marginals if
@@ -122,12 +147,18 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
         let size = i32::from(self.prior.size());
         let h = size / 2;
         let m = i32::from(self.prior.margin()).max(h);
-        let (w, hh) = (i32::from(self.geometry.width()), i32::from(self.geometry.height()));
+        let (w, hh) = (
+            i32::from(self.geometry.width()),
+            i32::from(self.geometry.height()),
+        );
         let updates = self.geometry.len().div_ceil((size * size) as usize);
         for _ in 0..updates {
             let cx = m + (self.uniform() * f64::from(w - 2 * m)) as i32;
             let cy = m + (self.uniform() * f64::from(hh - 2 * m)) as i32;
-            let centre = CellCoord { x: cx.min(w - 1 - m), y: cy.min(hh - 1 - m) };
+            let centre = CellCoord {
+                x: cx.min(w - 1 - m),
+                y: cy.min(hh - 1 - m),
+            };
             let config = if self.uniform() < self.p_rand {
                 (self.rng.next_u32() & ((1 << (size * size)) - 1)) as u16
             } else {
@@ -153,7 +184,10 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
         let mut win = 0u32;
         for dy in 0..side {
             for dx in 0..side {
-                if self.occ(CellCoord { x: centre.x - r + dx, y: centre.y - r + dy }) {
+                if self.occ(CellCoord {
+                    x: centre.x - r + dx,
+                    y: centre.y - r + dy,
+                }) {
                     win |= 1 << (dy * side + dx);
                 }
             }
@@ -170,7 +204,10 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
         let h = size / 2;
         for py in 0..size {
             for px in 0..size {
-                let c = CellCoord { x: centre.x - h + px, y: centre.y - h + py };
+                let c = CellCoord {
+                    x: centre.x - h + px,
+                    y: centre.y - h + py,
+                };
                 if let Some(i) = self.geometry.index(c) {
                     if let Some(s) = self.sample.get_mut(i) {
                         *s = u8::from(config & (1 << (py * size + px)) != 0);
@@ -181,13 +218,21 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
     }
 
     /// The normalised conditional of Eq. 1 at `centre`: fills `out` with (config, probability).
-    pub fn conditional<S, R>(&mut self, store: &RayStore<S, R>, centre: CellCoord, out: &mut [(u16, f64)]) -> usize
+    pub fn conditional<S, R>(
+        &mut self,
+        store: &RayStore<S, R>,
+        centre: CellCoord,
+        out: &mut [(u16, f64)],
+    ) -> usize
     where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
         let mut cands = [PatchCandidate::default(); MAX_CANDIDATES];
-        let n = self.prior.candidates(self.border(centre), &mut cands).min(out.len());
+        let n = self
+            .prior
+            .candidates(self.border(centre), &mut cands)
+            .min(out.len());
         let saved = self.current(centre);
         let mut logw = [0f64; MAX_CANDIDATES];
         for (lw, c) in logw.iter_mut().zip(cands.iter()).take(n) {
@@ -195,7 +240,11 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
             *lw = f64::from(c.log_prior) * LSB_NATS + self.log_likelihood(store, centre);
         }
         self.write(centre, saved);
-        let best = logw.iter().take(n).copied().fold(f64::NEG_INFINITY, f64::max);
+        let best = logw
+            .iter()
+            .take(n)
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
         let total: f64 = logw.iter().take(n).map(|l| libm::exp(l - best)).sum();
         for ((o, c), lw) in out.iter_mut().zip(cands.iter()).zip(logw.iter()).take(n) {
             *o = (c.config, libm::exp(lw - best) / total);
@@ -209,7 +258,10 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
         let mut c = 0u16;
         for py in 0..size {
             for px in 0..size {
-                if self.occ(CellCoord { x: centre.x - h + px, y: centre.y - h + py }) {
+                if self.occ(CellCoord {
+                    x: centre.x - h + px,
+                    y: centre.y - h + py,
+                }) {
                     c |= 1 << (py * size + px);
                 }
             }
@@ -245,7 +297,9 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
         let mut sum = 0.0;
         for scan in store.scans() {
             for k in 0..scan.len as usize {
-                let Some(r) = store.rays().get(scan.first as usize + k) else { continue };
+                let Some(r) = store.rays().get(scan.first as usize + k) else {
+                    continue;
+                };
                 let geom = store.ray_geometry(&scan.pose, r.angle);
                 let ray = geom.ray;
                 let crosses = (0..=ray.steps()).any(|i| {
@@ -256,12 +310,17 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
                     continue;
                 }
                 let step = f64::from(geom.step_q12) / 4096.0;
-                let f = (0..=ray.steps()).find(|&i| g.index(ray.cell_at(i)).is_some() && self.occ(ray.cell_at(i)));
+                let f = (0..=ray.steps())
+                    .find(|&i| g.index(ray.cell_at(i)).is_some() && self.occ(ray.cell_at(i)));
                 let n = ray.steps() as f64;
                 let no_return = r.z_q4 == NONE;
                 let z = f64::from(r.z_q4) / 16.0;
                 let f = f.map(|f| f as f64);
-                sum += self.model.log_lik(f.map(|f| (z - f) * step), f.map(|f| (n - f) * step), no_return);
+                sum += self.model.log_lik(
+                    f.map(|f| (z - f) * step),
+                    f.map(|f| (n - f) * step),
+                    no_return,
+                );
             }
         }
         sum
@@ -269,7 +328,12 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
 
     /// Marginal of cell `index` over the accumulated sweeps.
     pub fn marginal(&self, index: usize) -> Option<f64> {
-        (self.samples > 0).then(|| self.counts.get(index).map(|&c| c as f64 / self.samples as f64)).flatten()
+        (self.samples > 0)
+            .then(|| {
+                self.counts
+                    .get(index)
+                    .map(|&c| c as f64 / self.samples as f64)
+            })
+            .flatten()
     }
 }
-

@@ -1,0 +1,147 @@
+//! Boards: everything that knows a hardware address lives under this module.
+//!
+//! The application (`main.rs`) sees only what every board provides:
+//!
+//! * [`Board::take`] → `Option<Board>` (once), with the fields
+//!   * `lidar`: a UART for the range sensor (LD06: 230400 baud, sensor → MCU),
+//!   * `link`: a UART for the map stream / pose input (host link),
+//!   * `timer`: a free-running tick counter ([`Timer::now`], [`TICK_HZ`] ticks per second),
+//!   * `core`: the Cortex-M core peripherals (NVIC, SysTick, …);
+//! * the UARTs implement `embedded_io::{Read, Write, ReadReady, WriteReady}` (blocking, polling)
+//!   plus a non-blocking `try_read_byte`;
+//! * [`exit`]`(code) -> !`: end the program (QEMU: semihosting exit; a real board would reset);
+//! * the defmt global logger and the defmt timestamp (QEMU: semihosting stdout).
+//!
+//! Adding a board (e.g. nRF52840) = one more cargo feature + one more module here that provides
+//! the same names. Board-independent Cortex-M helpers ([`StaticBuf`], [`stack_usage`]) live in
+//! this file.
+//!
+//! # `unsafe`
+//! The crate denies `unsafe_code` everywhere except under `board`. Every `unsafe` block here says
+//! why it is sound; the public API is safe.
+//!
+//! The board API is wider than what today's `main.rs` uses (the LD06 driver, the map stream and
+//! the timestamps need the rest), hence the `allow(dead_code)` here.
+#![allow(dead_code)]
+
+use core::cell::UnsafeCell;
+use core::sync::atomic::{AtomicBool, Ordering};
+
+#[cfg(feature = "mps2-an386")]
+mod mps2_an386;
+#[cfg(feature = "mps2-an386")]
+#[allow(unused_imports)]
+pub use mps2_an386::{exit, uptime_us, Board, Timer, Uart, UartError, BOARD_NAME, TICK_HZ};
+
+#[cfg(not(feature = "mps2-an386"))]
+compile_error!("select exactly one board feature (e.g. `--features mps2-an386`)");
+
+/// A memory-mapped 32-bit register, accessed with volatile loads and stores.
+///
+/// Creating one is `unsafe` (the address must really be a device register); using it is safe,
+/// because a volatile access to a valid MMIO address cannot violate Rust's memory model. Owning
+/// peripheral structs (UART, timer) are handed out once by `Board::take`, so two drivers never
+/// fight over the same register.
+#[derive(Clone, Copy)]
+pub(crate) struct Reg(*mut u32);
+
+impl Reg {
+    /// # Safety
+    /// `addr` must be a 4-byte-aligned memory-mapped register that is valid for volatile 32-bit
+    /// reads and writes for the rest of the program, and not ordinary memory that Rust code also
+    /// accesses.
+    pub(crate) const unsafe fn at(addr: usize) -> Self {
+        Reg(addr as *mut u32)
+    }
+
+    /// Volatile read.
+    #[inline(always)]
+    pub(crate) fn read(self) -> u32 {
+        // SAFETY: `Reg::at`'s contract: a valid, aligned MMIO register.
+        unsafe { self.0.read_volatile() }
+    }
+
+    /// Volatile write.
+    #[inline(always)]
+    pub(crate) fn write(self, value: u32) {
+        // SAFETY: `Reg::at`'s contract: a valid, aligned MMIO register.
+        unsafe { self.0.write_volatile(value) }
+    }
+}
+
+/// A `static` buffer that is handed out at most once as `&'static mut T`: for the big map arrays,
+/// which must neither live on the stack nor be built on it (`cortex_m::singleton!` constructs its
+/// value on the stack first, which a 128 KiB grid would overflow).
+///
+/// Initialise it with a `const` value; an all-zero value (e.g. `[LogOdds::ZERO; N]`) lands in
+/// `.bss`, costs no flash and is zeroed by the runtime before `main`.
+pub struct StaticBuf<T> {
+    taken: AtomicBool,
+    value: UnsafeCell<T>,
+}
+
+// SAFETY: the only access to `value` is through `take`, which hands out one `&mut T` ever
+// (guarded by the atomic swap), so sharing the `StaticBuf` between contexts is sound as long as
+// the `&mut T` itself may move to another context (`T: Send`).
+unsafe impl<T: Send> Sync for StaticBuf<T> {}
+
+impl<T> StaticBuf<T> {
+    /// A buffer holding `value`.
+    pub const fn new(value: T) -> Self {
+        StaticBuf {
+            taken: AtomicBool::new(false),
+            value: UnsafeCell::new(value),
+        }
+    }
+
+    /// The buffer, the first time; `None` afterwards.
+    // `&self -> &mut T` is sound here: the atomic flag makes the `&mut` unique (as in static_cell).
+    #[allow(clippy::mut_from_ref)]
+    pub fn take(&'static self) -> Option<&'static mut T> {
+        if self.taken.swap(true, Ordering::AcqRel) {
+            return None;
+        }
+        // SAFETY: the swap above returns `false` exactly once, so this is the only reference
+        // to `value` that is ever created.
+        Some(unsafe { &mut *self.value.get() })
+    }
+}
+
+/// Stack size and high-water mark, from cortex-m-rt's `paint-stack` feature: the runtime fills
+/// `[_stack_end, _stack_start)` (from the end of `.bss`/`.uninit` to the top of RAM) with
+/// `0xCCCC_CCCC` before `main`; the lowest word that no longer holds the paint is the deepest
+/// the stack has reached. (A word that happened to be written with exactly the paint value would
+/// under-count by one word; irrelevant in practice.)
+#[derive(Clone, Copy, Debug, defmt::Format)]
+pub struct StackUsage {
+    /// Bytes between the end of static RAM and the top of RAM.
+    pub size: u32,
+    /// Bytes of it used so far (high-water mark).
+    pub used: u32,
+}
+
+/// See [`StackUsage`].
+pub fn stack_usage() -> StackUsage {
+    extern "C" {
+        // Linker-script symbols (cortex-m-rt's link.x); only their addresses are used.
+        static _stack_end: u32;
+        static _stack_start: u32;
+    }
+    let lo = core::ptr::addr_of!(_stack_end) as usize;
+    let hi = core::ptr::addr_of!(_stack_start) as usize;
+    let mut p = lo;
+    while p < hi {
+        // SAFETY: `[lo, hi)` is RAM owned by the stack (linker script); words below the current
+        // stack pointer hold only the paint or dead stack frames, and a volatile read of them
+        // has no side effects. Words above it belong to live frames, which we only read.
+        let word = unsafe { (p as *const u32).read_volatile() };
+        if word != cortex_m_rt::STACK_PAINT_VALUE {
+            break;
+        }
+        p += 4;
+    }
+    StackUsage {
+        size: (hi - lo) as u32,
+        used: (hi - p) as u32,
+    }
+}
