@@ -1,5 +1,6 @@
 //! `host-sim demo`: the main job. Generates the embedded default world (no files needed), lets
-//! the robot explore and map it online with ogm-core, scores the maps against ground truth and
+//! the robot explore and map it online with ogm-core, runs the border-conditioned Gibbs sampler
+//! (and the other two variants) on the recorded scans, scores every map against ground truth and
 //! writes PNGs and `report.json`.
 
 use std::collections::BTreeMap;
@@ -8,76 +9,104 @@ use std::time::Instant;
 
 use anyhow::Context;
 
-use crate::eval::{evaluate_methods, MethodMaps};
+use crate::eval::{evaluate_methods, MethodMaps, NEAR_MAPPED_CELLS};
 use crate::report::{MapInfo, Report};
+use crate::sampling::{run_sampler, SamplingConfig, Variant};
 use crate::sim::{probabilities, simulate, SimConfig};
 use crate::{progress, render, world};
 
 /// Runs the demo into `out`.
-pub fn run(out: &Path, seed: u64) -> anyhow::Result<()> {
+pub fn run(out: &Path, seed: u64, all_samplers: bool) -> anyhow::Result<()> {
     std::fs::create_dir_all(out)
         .with_context(|| format!("creating output directory {}", out.display()))?;
     let world = world::generate::default_world();
     println!(
-        "default world: {}x{} cells of {:.2} m ({:.1} x {:.1} m)",
+        "default world: {}x{} cells of {:.2} m ({:.1} x {:.1} m), {:.1} % occupied",
         world.width,
         world.height,
         world.resolution_m,
         world.width as f64 * world.resolution_m,
-        world.height as f64 * world.resolution_m
+        world.height as f64 * world.resolution_m,
+        100.0 * world.occupied_fraction()
     );
     let cfg = SimConfig::default();
-    let bar = progress::spinner("exploring and mapping");
+    let bar = progress::spinner("exploring and mapping online");
     let t0 = Instant::now();
     let run = simulate(&world, &cfg, seed)?;
     let mapping_s = t0.elapsed().as_secs_f64();
-    bar.finish_with_message(format!("{} scans in {:.2} s", run.scans.len(), mapping_s));
+    bar.finish_with_message(format!(
+        "{} scans mapped online in {:.2} s",
+        run.scans.len(),
+        mapping_s
+    ));
 
-    let traditional = probabilities(&run.map);
     let mut maps = MethodMaps::new();
-    maps.insert("traditional".into(), traditional.clone());
-    let (methods, near) = evaluate_methods(&world, &[(maps, run.observed.clone())])?;
-
-    let t = methods
-        .get("traditional")
-        .map(|s| s.threshold_at_max_f1)
-        .unwrap_or(0.5);
-    render::truth_png(out.join("ground_truth.png"), &world)?;
-    render::probability_png(
-        out.join("traditional_probability.png"),
-        &traditional,
-        world.width,
-        world.height,
-    )?;
-    render::threshold_png(
-        out.join("traditional_thresholded.png"),
-        &traditional,
-        world.width,
-        world.height,
-        t,
-    )?;
-    render::comparison_png(out.join("traditional_errors.png"), &traditional, &world, t)?;
-
     let mut seconds = BTreeMap::new();
+    maps.insert("traditional".into(), probabilities(&run.map));
     seconds.insert("traditional".to_string(), mapping_s);
+    let scfg = SamplingConfig::default();
+    let variants: &[Variant] = if all_samplers {
+        &Variant::ALL
+    } else {
+        &[Variant::L9Border]
+    };
+    let bar = progress::bar(variants.len() as u64, "Gibbs samplers");
+    for &v in variants {
+        bar.set_message(v.name());
+        let o = run_sampler(
+            run.geometry,
+            &run.mapper_config,
+            &run.scans,
+            &run.map,
+            v,
+            &scfg,
+            seed,
+        )?;
+        seconds.insert(v.name().to_string(), o.seconds);
+        maps.insert(v.name().into(), o.marginals);
+        bar.inc(1);
+    }
+    bar.finish_with_message("samplers done");
+
+    let (methods, near) = evaluate_methods(&world, &[(maps.clone(), run.observed.clone())])?;
+    let (w, h) = (world.width, world.height);
+    render::truth_png(out.join("ground_truth.png"), &world)?;
+    let mut panels = vec![("ground truth".to_string(), render::truth_image(&world)?)];
+    for name in ["traditional", "gibbs_l9_border"] {
+        let probs = &maps[name];
+        let t = methods.get(name).map_or(0.5, |s| s.threshold_at_max_f1);
+        render::probability_png(out.join(format!("{name}_probability.png")), probs, w, h)?;
+        render::threshold_png(out.join(format!("{name}_thresholded.png")), probs, w, h, t)?;
+        render::comparison_png(out.join(format!("{name}_errors.png")), probs, &world, t)?;
+        panels.push((name.to_string(), render::probability_image(probs, w, h)?));
+    }
+    render::side_by_side_png(out.join("comparison.png"), &panels)?;
+
     let report = Report {
         methods,
         methods_near_mapped: near,
-        restricted_radius_cells: crate::eval::NEAR_MAPPED_CELLS,
+        restricted_radius_cells: NEAR_MAPPED_CELLS,
         datasets: 1,
         maps: vec![MapInfo {
             name: "default".into(),
-            width: world.width,
-            height: world.height,
+            width: w,
+            height: h,
             resolution_m: world.resolution_m,
             runs: 1,
             mean_scans: run.scans.len() as f64,
         }],
-        settings: serde_json::json!({ "sim": cfg, "seed": seed, "mapper": format!("{:?}", run.mapper_config) }),
+        settings: serde_json::json!({
+            "sim": cfg, "seed": seed, "sampler": scfg,
+            "mapper": format!("{:?}", run.mapper_config),
+        }),
         seconds,
     };
     report.write(&out.join("report.json"))?;
     println!("\n{}", report.table());
+    println!(
+        "ground truth | traditional | border sampler: {}",
+        out.join("comparison.png").display()
+    );
     println!("wrote {}", out.display());
     Ok(())
 }

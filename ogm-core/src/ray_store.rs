@@ -1,7 +1,8 @@
 //! The measurement store: the rays the Gibbs sampler evaluates, in bounded, caller-provided
 //! memory.
 //!
-//! Rays are grouped by scan: a [`StoredScan`] keeps the pose once, and each of its rays
+//! Rays are grouped by scan and sorted by angle within it: a [`StoredScan`] keeps the pose
+//! once, and each of its rays
 //! ([`StoredRay`], 6 bytes) keeps only the beam angle, the measured range (or "no return") and a
 //! cache of the ray's first occupied step in the sampler's current map. Every ray is traced from
 //! the cell of its scan's pose to the point at maximum range (the "far end"), so the sampler can
@@ -94,6 +95,18 @@ fn length_q8(dx: i64, dy: i64) -> u64 {
     ((dx * dx + dy * dy) as u64).saturating_mul(1 << 16).isqrt()
 }
 
+/// Length of one Bresenham step of the ray `start → end`, in cells, Q12 (4096 = 1, ≤ √2).
+pub fn step_q12(start: CellCoord, end: CellCoord) -> u32 {
+    let (dx, dy) = (
+        i64::from(end.x) - i64::from(start.x),
+        i64::from(end.y) - i64::from(start.y),
+    );
+    let n = dx.unsigned_abs().max(dy.unsigned_abs());
+    (length_q8(dx, dy) << 4)
+        .checked_div(n)
+        .map_or(4096, |v| v as u32)
+}
+
 impl<S, R> RayStore<S, R>
 where
     S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
@@ -177,18 +190,18 @@ where
     /// Geometry of a ray of `scan`.
     pub fn ray_geometry(&self, pose: &Pose, angle: Angle) -> RayGeometry {
         let start = self.geometry.cell_of_pose(pose);
+        let end = self.far_end(pose, angle);
+        RayGeometry {
+            ray: Ray::new(start, end),
+            step_q12: step_q12(start, end),
+        }
+    }
+
+    /// The far-end cell (at maximum range) of a beam.
+    #[inline]
+    pub fn far_end(&self, pose: &Pose, angle: Angle) -> CellCoord {
         let (x, y) = pose.beam_end(angle, self.max_range_mm);
-        let end = self.geometry.cell_of_point(x, y);
-        let ray = Ray::new(start, end);
-        let (dx, dy) = (
-            i64::from(end.x) - i64::from(start.x),
-            i64::from(end.y) - i64::from(start.y),
-        );
-        let n = ray.steps();
-        let step_q12 = (length_q8(dx, dy) << 4)
-            .checked_div(n)
-            .map_or(4096, |v| v as u32);
-        RayGeometry { ray, step_q12 }
+        self.geometry.cell_of_point(x, y)
     }
 
     /// The cell of `pose` (the start of its rays).
@@ -263,6 +276,23 @@ where
             };
             self.n_rays += 1;
             self.stats.rays_added = self.stats.rays_added.saturating_add(1);
+        }
+        // Keep each scan's rays sorted by angle (the sampler finds the rays crossing a region by
+        // binary search). Insertion sort: no allocation, linear on the sorted scans lidars emit.
+        if let Some(new) = self.rays.as_mut().get_mut(first..self.n_rays) {
+            for i in 1..new.len() {
+                let mut j = i;
+                while j > 0 {
+                    let (Some(a), Some(b)) = (new.get(j - 1), new.get(j)) else {
+                        break;
+                    };
+                    if a.angle.0 <= b.angle.0 {
+                        break;
+                    }
+                    new.swap(j - 1, j);
+                    j -= 1;
+                }
+            }
         }
         let len = (self.n_rays - first) as u32;
         if let Some(slot) = self.scans.as_mut().get_mut(self.n_scans) {

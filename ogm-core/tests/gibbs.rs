@@ -4,7 +4,8 @@
 use ogm_core::fixed::LSB_NATS;
 use ogm_core::forward_model::ForwardModel;
 use ogm_core::gibbs::{
-    ConstantCellPrior, Gibbs, LocalRay, PatchCandidate, PatchPrior, SamplerConfig,
+    block_words, Buffers, ConstantCellPrior, Gibbs, LocalRay, PatchCandidate, PatchPrior,
+    SamplerConfig,
 };
 use ogm_core::mapper::marks_len;
 use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
@@ -14,7 +15,7 @@ use ogm_core::{
 };
 
 type Store = RayStore<Vec<StoredScan>, Vec<StoredRay>>;
-type Sampler<P> = Gibbs<P, Vec<u32>, Vec<u32>, Vec<LocalRay>, u32>;
+type Sampler<P> = Gibbs<P, Vec<u32>, Vec<u32>, Vec<LocalRay>, Vec<u32>, u32>;
 
 const CELL: u32 = 100;
 
@@ -35,16 +36,13 @@ fn sampler<P: PatchPrior>(
     fm: ForwardModel,
     cfg: SamplerConfig,
 ) -> Sampler<P> {
-    Gibbs::new(
-        g,
-        prior,
-        fm,
-        cfg,
-        vec![0; g.len().div_ceil(32)],
-        vec![0; g.len()],
-        vec![LocalRay::default(); 4096],
-    )
-    .unwrap()
+    let buf = Buffers {
+        sample: vec![0; g.len().div_ceil(32)],
+        counts: vec![0; g.len()],
+        local: vec![LocalRay::default(); 4096],
+        blocks: vec![0; block_words(4096)],
+    };
+    Gibbs::new(g, prior, fm, cfg, buf).unwrap()
 }
 
 fn kl(p: f64, q: f64) -> f64 {

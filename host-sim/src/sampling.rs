@@ -1,0 +1,221 @@
+//! Runs `ogm_core::gibbs` on a recorded dataset: the three variants of the paper's Table II
+//! (`gibbs_l1`, `gibbs_l9`, `gibbs_l9_border`), with host-sized (or firmware-sized) buffers.
+
+use std::time::Instant;
+
+use anyhow::anyhow;
+use ogm_core::forward_model::ForwardModel;
+use ogm_core::gibbs::{
+    block_words, BorderPrior, Buffers, ConstantCellPrior, Gibbs, LocalRay, PatchPrior,
+    SamplerConfig, SamplerStats, UnconditionedPrior,
+};
+use ogm_core::ray_store::{RayStore, StoreStats, StoredRay, StoredScan};
+use ogm_core::{GridGeometry, LogOdds, MapperConfig};
+use serde::{Deserialize, Serialize};
+
+use crate::explore::ScanRecord;
+
+/// Which sampler.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Variant {
+    /// L = 1 with the constant data-driven prior p(m_k).
+    L1,
+    /// L = 9 with the unconditioned data-driven prior.
+    L9,
+    /// L = 9 conditioned on the 16-cell border (the product's default).
+    L9Border,
+}
+
+impl Variant {
+    /// All variants, in the paper's column order.
+    pub const ALL: [Variant; 3] = [Variant::L1, Variant::L9, Variant::L9Border];
+
+    /// The method name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::L1 => "gibbs_l1",
+            Variant::L9 => "gibbs_l9",
+            Variant::L9Border => "gibbs_l9_border",
+        }
+    }
+
+    /// Cells per patch.
+    pub fn cells(self) -> u32 {
+        match self {
+            Variant::L1 => 1,
+            _ => 9,
+        }
+    }
+}
+
+/// Buffer sizes: `None` = large enough for everything (the host's unbounded configuration).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+pub struct Bounds {
+    /// Stored rays.
+    pub rays: Option<usize>,
+    /// Stored scans.
+    pub scans: Option<usize>,
+    /// Rays per tile visit.
+    pub local: Option<usize>,
+    /// Marginal counters are `u8` (firmware) instead of `u32`.
+    pub u8_counts: bool,
+}
+
+/// Sampler settings for an evaluation.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SamplingConfig {
+    /// Sweeps discarded before marginals are counted.
+    pub burn_in: u32,
+    /// Sweeps counted.
+    pub sweeps: u32,
+    /// Candidates per patch.
+    pub max_candidates: u8,
+    /// Forward model σ, cells.
+    pub sigma_cells: f64,
+    /// Forward model outlier weight.
+    pub outlier_weight: f64,
+    /// p_randPatch.
+    pub p_rand_patch: f32,
+    /// Log2 of the tile edge.
+    pub tile_shift: u8,
+    /// Initial sample: occupied iff the online log-odds exceeds this (raw LSB).
+    pub init_threshold: i16,
+    /// Buffer bounds.
+    pub bounds: Bounds,
+}
+
+impl Default for SamplingConfig {
+    fn default() -> Self {
+        SamplingConfig {
+            burn_in: 20,
+            sweeps: 100,
+            max_candidates: 16,
+            sigma_cells: 3.0,
+            outlier_weight: 0.01,
+            p_rand_patch: 0.001,
+            tile_shift: 4,
+            init_threshold: -1,
+            bounds: Bounds::default(),
+        }
+    }
+}
+
+/// What a sampler run produced.
+#[derive(Clone, Debug)]
+pub struct SamplerOutput {
+    /// Marginal p(occupied) per cell.
+    pub marginals: Vec<f64>,
+    /// The sampler's counters.
+    pub stats: SamplerStats,
+    /// The ray store's counters.
+    pub store: StoreStats,
+    /// Wall-clock seconds of sampling (burn-in + sweeps), excluding setup.
+    pub seconds: f64,
+    /// Seconds per map sample (K/L patch updates).
+    pub seconds_per_sweep: f64,
+}
+
+/// Runs `variant` on a dataset whose online log-odds map is `map`.
+pub fn run_sampler(
+    geometry: GridGeometry,
+    mapper: &MapperConfig,
+    scans: &[ScanRecord],
+    map: &[LogOdds],
+    variant: Variant,
+    cfg: &SamplingConfig,
+    seed: u64,
+) -> anyhow::Result<SamplerOutput> {
+    match variant {
+        Variant::L1 => {
+            let p = ogm_core::prior::occupancy_prior().p_occupied();
+            let prior = ConstantCellPrior::new(p).map_err(|e| anyhow!("cell prior {p}: {e}"))?;
+            run_with(geometry, mapper, scans, map, prior, cfg, seed)
+        }
+        Variant::L9 => run_with(geometry, mapper, scans, map, UnconditionedPrior, cfg, seed),
+        Variant::L9Border => run_with(geometry, mapper, scans, map, BorderPrior, cfg, seed),
+    }
+}
+
+fn run_with<P: PatchPrior>(
+    geometry: GridGeometry,
+    mapper: &MapperConfig,
+    scans: &[ScanRecord],
+    map: &[LogOdds],
+    prior: P,
+    cfg: &SamplingConfig,
+    seed: u64,
+) -> anyhow::Result<SamplerOutput> {
+    if cfg.bounds.u8_counts {
+        run_counts::<P, u8>(geometry, mapper, scans, map, prior, cfg, seed)
+    } else {
+        run_counts::<P, u32>(geometry, mapper, scans, map, prior, cfg, seed)
+    }
+}
+
+fn run_counts<P: PatchPrior, N: ogm_core::gibbs::Count>(
+    geometry: GridGeometry,
+    mapper: &MapperConfig,
+    scans: &[ScanRecord],
+    map: &[LogOdds],
+    prior: P,
+    cfg: &SamplingConfig,
+    seed: u64,
+) -> anyhow::Result<SamplerOutput> {
+    let total_rays: usize = scans.iter().map(|s| s.beams.len()).sum();
+    let b = cfg.bounds;
+    let mut store = RayStore::new(
+        geometry,
+        mapper.max_range_mm,
+        mapper.min_range_mm,
+        vec![StoredScan::default(); b.scans.unwrap_or(scans.len()).max(1)],
+        vec![StoredRay::default(); b.rays.unwrap_or(total_rays).max(1)],
+    )
+    .map_err(|e| anyhow!("ray store: {e}"))?;
+    for s in scans {
+        store.add_scan(&s.pose, &s.beams);
+    }
+    let cells_per_patch = prior.size() as u32 * prior.size() as u32;
+    let fm = ForwardModel::gaussian(
+        cfg.sigma_cells,
+        cfg.outlier_weight,
+        f64::from(mapper.max_range_mm) / f64::from(geometry.cell_mm()),
+    )
+    .map_err(|e| anyhow!("forward model: {e}"))?;
+    let sc = SamplerConfig {
+        p_rand_patch: cfg.p_rand_patch,
+        burn_in_sweeps: cfg.burn_in,
+        max_candidates: cfg.max_candidates,
+        init_threshold: LogOdds(cfg.init_threshold),
+        tile_shift: cfg.tile_shift,
+        visit_sweeps: 4,
+        seed,
+    };
+    let local = b.local.unwrap_or(total_rays.clamp(1, 1 << 16));
+    let buf = Buffers {
+        sample: vec![0u32; geometry.len().div_ceil(32)],
+        counts: vec![N::default(); geometry.len()],
+        local: vec![LocalRay::default(); local],
+        blocks: vec![0u32; block_words(local)],
+    };
+    let mut gibbs =
+        Gibbs::new(geometry, prior, fm, sc, buf).map_err(|e| anyhow!("sampler: {e}"))?;
+    gibbs
+        .reset(map, &mut store)
+        .map_err(|e| anyhow!("sampler reset: {e}"))?;
+    let sweep = (geometry.len() as u32).div_ceil(cells_per_patch);
+    let t0 = Instant::now();
+    for _ in 0..cfg.burn_in + cfg.sweeps {
+        gibbs.step(&mut store, sweep);
+    }
+    let seconds = t0.elapsed().as_secs_f64();
+    let marginals = (0..geometry.len())
+        .map(|i| gibbs.marginal(i).map_or(0.5, f64::from))
+        .collect();
+    Ok(SamplerOutput {
+        marginals,
+        stats: gibbs.stats(),
+        store: store.stats(),
+        seconds,
+        seconds_per_sweep: seconds / f64::from((cfg.burn_in + cfg.sweeps).max(1)),
+    })
+}
