@@ -16,7 +16,8 @@
 #   --timeout SECS   kill QEMU after SECS (default $FIRMWARE_QEMU_TIMEOUT or 60); exit 124 then
 #   --uart0 SPEC     QEMU -serial spec for UART0 (lidar in), default `null`
 #   --uart1 SPEC     QEMU -serial spec for UART1 (host link), default
-#                    file:firmware/target/qemu/uart1.out (printed after the run)
+#                    file:firmware/target/qemu/uart1.out (the binary map stream; decode it
+#                    with `host-sim firmware --decode FILE`)
 #                    e.g. `chardev:u1` + `-- -chardev socket,id=u1,path=SOCK` for a binary link
 #   --raw FILE       where to keep the raw defmt stream (default firmware/target/qemu/defmt.raw)
 #   --no-icount      run at full speed (timer ticks are then host time, not instruction counts)
@@ -116,8 +117,9 @@ run_qemu() {
     fi
     set -e
     if [ -n "$uart1_file" ]; then
-        say "UART1 received $(wc -c <"$uart1_file") bytes (${uart1_file#"$ROOT"/}):"
-        cat -v "$uart1_file" >&2
+        # The map stream is binary (COBS frames, docs/wire.md): decode it, do not print it.
+        say "UART1 received $(wc -c <"$uart1_file") bytes of map stream (${uart1_file#"$ROOT"/});"
+        say "decode: cargo run -p host-sim --release -- firmware --decode ${uart1_file#"$ROOT"/}"
     fi
     case "$rc" in
     0) ;;

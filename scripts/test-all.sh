@@ -1,28 +1,40 @@
 #!/usr/bin/env bash
-# The full test suite, from a fresh machine of this kind (Debian 12 + rustup stable).
-# Installs what it needs (apt packages for the Cortex-M4 toolchain and QEMU), then runs:
-#   formatting, clippy (-D warnings), the host workspace tests, ogm-core's no_std / no-default
-#   builds, and the firmware build + QEMU integration tests.
+# The full test suite, from a fresh machine of this kind (Debian 12 + rustup stable, as root or
+# with passwordless sudo). Installs what it needs — the Cortex-M4 toolchain (rustup target, or
+# Debian's rustc-web + rust-web-src + lld with build-std), qemu-system-arm and defmt-print —
+# then runs, and stops at the first failure:
+#   1. formatting (host workspace and firmware)
+#   2. clippy -D warnings (host workspace, all targets; firmware when the rustup toolchain is used)
+#   3. ogm-core as a library without default features and with defmt (no_std, no alloc)
+#   4. the host workspace tests, including the firmware-in-QEMU integration tests
+#      (OGM_REQUIRE_FIRMWARE=1: they fail instead of skipping if QEMU or the toolchain is missing)
+#   5. the firmware's on-target self test in QEMU
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 step() { printf '\n==> %s\n' "$*"; }
+t0=$SECONDS
 
-# --- toolchain for the firmware: see docs/firmware.md -------------------------------------------
+step "firmware toolchain and QEMU (installs what is missing)"
 bash scripts/firmware-toolchain.sh
 
 step "cargo fmt --check"
 cargo fmt --all -- --check
+rustfmt --edition 2021 --check firmware/build.rs firmware/src/main.rs
 
-step "cargo clippy (host workspace, all targets, -D warnings)"
+step "cargo clippy --workspace --all-targets -- -D warnings"
 cargo clippy --workspace --all-targets -- -D warnings
 
-step "ogm-core without default features / with defmt"
+step "ogm-core: no default features (no_std, no reference), and with defmt"
 cargo build -p ogm-core --no-default-features
 cargo build -p ogm-core --no-default-features --features defmt
 
-step "cargo test (host workspace)"
-cargo test --workspace
+step "cargo test --workspace (with the firmware in QEMU)"
+OGM_REQUIRE_FIRMWARE=1 cargo test --workspace
+
+step "firmware: clippy (rustup toolchain only) and the on-target run in QEMU"
+bash scripts/firmware.sh clippy
+bash scripts/firmware.sh run
 
 echo
-echo "All tests passed."
+echo "All tests passed in $((SECONDS - t0)) s."

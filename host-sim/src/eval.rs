@@ -1,13 +1,17 @@
-//! `host-sim eval-sim`: simulated datasets on ground-truth maps, pooled metrics per method.
+//! `host-sim eval-sim`: simulated datasets on ground-truth maps, pooled metrics per method
+//! (the protocol of the paper's Table II: ≈500×500-cell worlds, F = 75 cells, σ = 3 cells,
+//! sparse scans at stops).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context};
+use serde::{Deserialize, Serialize};
 
 use crate::metrics::{mask_within, PrAccumulator, Summary};
 use crate::report::{MapInfo, Report};
+use crate::sampling::{run_sampler, Bounds, SamplingConfig, Variant};
 use crate::sim::{probabilities, simulate, SimConfig};
 use crate::world::{load::load_world, World};
 use crate::{progress, render};
@@ -15,8 +19,11 @@ use crate::{progress, render};
 /// Radius (cells) of the "near a mapped cell" restriction (the paper's hardware metric).
 pub const NEAR_MAPPED_CELLS: f64 = 10.0;
 
-/// Cell size every evaluation world is resampled to (the prior's canonical cell size).
+/// The canonical cell size (the prior's): evaluation worlds are labelled with it.
 pub const EVAL_RESOLUTION_M: f64 = 0.05;
+
+/// Side (cells) larger evaluation maps are cropped to, like the paper's 500×500 worlds.
+pub const EVAL_CELLS: usize = 500;
 
 /// Probability maps per method for one dataset.
 pub type MethodMaps = BTreeMap<String, Vec<f64>>;
@@ -27,34 +34,40 @@ pub fn evaluate_methods(
     world: &World,
     datasets: &[(MethodMaps, Vec<bool>)],
 ) -> anyhow::Result<(BTreeMap<String, Summary>, BTreeMap<String, Summary>)> {
-    let mut all: BTreeMap<String, PrAccumulator> = BTreeMap::new();
-    let mut near: BTreeMap<String, PrAccumulator> = BTreeMap::new();
-    accumulate(world, datasets, &mut all, &mut near)?;
-    Ok((summaries(&all), summaries(&near)))
+    let mut acc = Pooled::default();
+    for (maps, mapped) in datasets {
+        acc.add(world, maps, mapped)?;
+    }
+    Ok((acc.summaries(false), acc.summaries(true)))
 }
 
-fn accumulate(
-    world: &World,
-    datasets: &[(MethodMaps, Vec<bool>)],
-    all: &mut BTreeMap<String, PrAccumulator>,
-    near: &mut BTreeMap<String, PrAccumulator>,
-) -> anyhow::Result<()> {
-    for (maps, mapped) in datasets {
+/// Per-method accumulators over all cells and over cells near mapped cells.
+#[derive(Default)]
+struct Pooled {
+    all: BTreeMap<String, PrAccumulator>,
+    near: BTreeMap<String, PrAccumulator>,
+}
+
+impl Pooled {
+    fn add(&mut self, world: &World, maps: &MethodMaps, mapped: &[bool]) -> anyhow::Result<()> {
         let mask = mask_within(mapped, world.width, world.height, NEAR_MAPPED_CELLS);
         for (name, probs) in maps {
-            all.entry(name.clone())
+            self.all
+                .entry(name.clone())
                 .or_default()
                 .add(probs, &world.cells, None)?;
-            near.entry(name.clone())
+            self.near
+                .entry(name.clone())
                 .or_default()
                 .add(probs, &world.cells, Some(&mask))?;
         }
+        Ok(())
     }
-    Ok(())
-}
 
-fn summaries(acc: &BTreeMap<String, PrAccumulator>) -> BTreeMap<String, Summary> {
-    acc.iter().map(|(k, v)| (k.clone(), v.summary())).collect()
+    fn summaries(&self, near: bool) -> BTreeMap<String, Summary> {
+        let acc = if near { &self.near } else { &self.all };
+        acc.iter().map(|(k, v)| (k.clone(), v.summary())).collect()
+    }
 }
 
 /// Expands directories into the map files inside them (sorted), keeps files as given.
@@ -63,7 +76,7 @@ pub fn collect_maps(paths: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
     for p in paths {
         if p.is_dir() {
             let mut files: Vec<PathBuf> = std::fs::read_dir(p)
-                .with_context(|| format!("reading directory {}", p.display()))?
+                .with_context(|| format!("{}: cannot read directory", p.display()))?
                 .filter_map(|e| e.ok().map(|e| e.path()))
                 .filter(|f| {
                     let ext = f
@@ -98,37 +111,179 @@ pub fn collect_maps(paths: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
     Ok(out)
 }
 
+/// Loads an evaluation world. A ROS YAML whose image is missing falls back (with a warning) to an
+/// image of the same stem beside it. The protocol is defined in cells (F = 75, σ = 3, ≈500×500
+/// worlds), so one map pixel is one cell, labelled with the canonical 0.05 m (Player/Stage
+/// bitmaps are 2.5–4.5 cm per pixel); a map wider or taller than [`EVAL_CELLS`] + 20 % is cropped
+/// to the [`EVAL_CELLS`]-square window (or strip) holding the most free cells, searched on a
+/// 25-cell stride — deterministic, and it keeps the building rather than the empty margins.
+/// Finally every free region not connected to the largest one becomes occupied: Player/Stage
+/// draws solid obstacles as outlines, and a region no robot can enter or see into is solid for
+/// the simulator (and unknowable to any mapper), so scoring it as free would only measure that.
+pub fn load_eval_world(path: &Path) -> anyhow::Result<World> {
+    let world = match load_world(path, None) {
+        Ok(w) => w,
+        Err(e @ crate::world::load::MapError::ImageMissing { .. }) => {
+            let alt = ["pgm", "png"]
+                .iter()
+                .map(|x| path.with_extension(x))
+                .find(|p| p.exists());
+            match alt {
+                Some(alt) => {
+                    eprintln!("warning: {e}; using {} instead", alt.display());
+                    load_world(&alt, None)?
+                }
+                None => return Err(e.into()),
+            }
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let limit = EVAL_CELLS + EVAL_CELLS / 5;
+    let mut w = if world.width > limit || world.height > limit {
+        let (cw, ch) = (world.width.min(EVAL_CELLS), world.height.min(EVAL_CELLS));
+        let (x, y) = densest_window(&world, cw, ch);
+        world.crop(x, y, cw, ch)
+    } else {
+        world
+    };
+    w.resolution_m = EVAL_RESOLUTION_M;
+    w.origin_m = (0.0, 0.0);
+    fill_enclosed(&mut w);
+    Ok(w)
+}
+
+/// Marks every free cell outside the largest 4-connected free region occupied.
+pub fn fill_enclosed(w: &mut World) {
+    let comps = w.free_components();
+    let Some(largest) = comps
+        .sizes
+        .iter()
+        .enumerate()
+        .max_by_key(|(_, s)| **s)
+        .map(|(i, _)| i as u32)
+    else {
+        return;
+    };
+    for (c, l) in w.cells.iter_mut().zip(&comps.labels) {
+        if *c == crate::world::Truth::Free && *l != largest {
+            *c = crate::world::Truth::Occupied;
+        }
+    }
+}
+
+/// Lower-left corner of the `cw × ch` window with the most free cells (25-cell stride).
+fn densest_window(world: &World, cw: usize, ch: usize) -> (usize, usize) {
+    let (w, h) = (world.width, world.height);
+    let mut sat = vec![0u64; (w + 1) * (h + 1)];
+    for y in 0..h {
+        for x in 0..w {
+            let free = u64::from(world.cells[y * w + x] == crate::world::Truth::Free);
+            sat[(y + 1) * (w + 1) + x + 1] =
+                free + sat[y * (w + 1) + x + 1] + sat[(y + 1) * (w + 1) + x] - sat[y * (w + 1) + x];
+        }
+    }
+    let count = |x: usize, y: usize| {
+        sat[(y + ch) * (w + 1) + x + cw] + sat[y * (w + 1) + x]
+            - sat[y * (w + 1) + x + cw]
+            - sat[(y + ch) * (w + 1) + x]
+    };
+    let mut best = (0, 0, 0);
+    for y in (0..=h - ch).step_by(25) {
+        for x in (0..=w - cw).step_by(25) {
+            let c = count(x, y);
+            if c > best.0 {
+                best = (c, x, y);
+            }
+        }
+    }
+    (best.1, best.2)
+}
+
+/// Settings of an evaluation run.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct EvalConfig {
+    /// Datasets per map.
+    pub runs: u32,
+    /// First seed.
+    pub seed: u64,
+    /// Sampler variants to run besides traditional OGM.
+    pub variants: Vec<Variant>,
+    /// Simulation.
+    pub sim: SimConfig,
+    /// Samplers.
+    pub sampling: SamplingConfig,
+}
+
 /// Runs `eval-sim`.
-pub fn run_sim(maps: &[PathBuf], runs: u32, out: &Path, seed: u64) -> anyhow::Result<()> {
-    anyhow::ensure!(runs > 0, "--runs must be at least 1");
+pub fn run_sim(maps: &[PathBuf], out: &Path, cfg: &EvalConfig) -> anyhow::Result<()> {
+    anyhow::ensure!(cfg.runs > 0, "--runs must be at least 1");
     let files = collect_maps(maps)?;
     std::fs::create_dir_all(out)
-        .with_context(|| format!("creating output directory {}", out.display()))?;
-    let cfg = SimConfig::default();
-    let mut all: BTreeMap<String, PrAccumulator> = BTreeMap::new();
-    let mut near: BTreeMap<String, PrAccumulator> = BTreeMap::new();
+        .with_context(|| format!("{}: cannot create output directory", out.display()))?;
+    let mut pooled = Pooled::default();
     let mut infos = Vec::new();
     let mut seconds: BTreeMap<String, f64> = BTreeMap::new();
-    let bar = progress::bar(files.len() as u64 * u64::from(runs), "simulated datasets");
+    let mut per_sweep: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    let mut skipped = Vec::new();
+    let bar = progress::bar(
+        files.len() as u64 * u64::from(cfg.runs),
+        "simulated datasets",
+    );
     for (j, file) in files.iter().enumerate() {
-        let world = load_world(file, None)?.resample(EVAL_RESOLUTION_M);
+        let world = match load_eval_world(file) {
+            Ok(w) => w,
+            Err(e) => {
+                bar.println(format!("skipping {}: {e:#}", file.display()));
+                skipped.push(serde_json::json!({ "map": file.display().to_string(), "error": format!("{e:#}") }));
+                bar.inc(u64::from(cfg.runs));
+                continue;
+            }
+        };
         let name = file
             .file_stem()
             .and_then(|s| s.to_str())
             .unwrap_or("map")
             .to_string();
         let mut scans = 0usize;
-        for i in 0..runs {
+        for i in 0..cfg.runs {
             bar.set_message(format!("{name} run {}", i + 1));
-            let s = seed + 1000 * j as u64 + u64::from(i);
+            let s = cfg.seed + 1000 * j as u64 + u64::from(i);
             let t0 = Instant::now();
-            let run = simulate(&world, &cfg, s)
+            let run = simulate(&world, &cfg.sim, s)
                 .with_context(|| format!("simulating on {}", file.display()))?;
             *seconds.entry("traditional".into()).or_default() += t0.elapsed().as_secs_f64();
             scans += run.scans.len();
             let mut m = MethodMaps::new();
             m.insert("traditional".into(), probabilities(&run.map));
-            accumulate(&world, &[(m, run.observed.clone())], &mut all, &mut near)?;
+            for &v in &cfg.variants {
+                let o = run_sampler(
+                    run.geometry,
+                    &run.mapper_config,
+                    &run.scans,
+                    &run.map,
+                    v,
+                    &cfg.sampling,
+                    s,
+                )?;
+                *seconds.entry(v.name().into()).or_default() += o.seconds;
+                per_sweep
+                    .entry(v.name().into())
+                    .or_default()
+                    .push(o.seconds_per_sweep);
+                m.insert(v.name().into(), o.marginals);
+            }
+            pooled.add(&world, &m, &run.observed)?;
+            if i == 0 {
+                // One picture per map: ground truth, then every method's probability map.
+                let mut panels = vec![("ground truth".to_string(), render::truth_image(&world)?)];
+                for (k, probs) in &m {
+                    panels.push((
+                        k.clone(),
+                        render::probability_image(probs, world.width, world.height)?,
+                    ));
+                }
+                render::side_by_side_png(out.join(format!("{name}.png")), &panels)?;
+            }
             bar.inc(1);
         }
         infos.push(MapInfo {
@@ -136,29 +291,65 @@ pub fn run_sim(maps: &[PathBuf], runs: u32, out: &Path, seed: u64) -> anyhow::Re
             width: world.width,
             height: world.height,
             resolution_m: world.resolution_m,
-            runs,
-            mean_scans: scans as f64 / f64::from(runs),
+            runs: cfg.runs,
+            mean_scans: scans as f64 / f64::from(cfg.runs),
         });
     }
     bar.finish();
-    let curves: Vec<(String, Vec<crate::metrics::PrPoint>)> =
-        all.iter().map(|(k, v)| (k.clone(), v.curve())).collect();
+    anyhow::ensure!(
+        !infos.is_empty(),
+        "no map could be loaded (see the messages above)"
+    );
+    let curves: Vec<(String, Vec<crate::metrics::PrPoint>)> = pooled
+        .all
+        .iter()
+        .map(|(k, v)| (k.clone(), v.curve()))
+        .collect();
     render::pr_curve_svg(
         out.join("pr_curve.svg"),
         &curves,
         "Precision-recall, simulated datasets",
     )?;
+    render::f1_vs_threshold_svg(
+        out.join("f1_vs_threshold.svg"),
+        &curves,
+        "F1 vs threshold, simulated datasets",
+    )?;
+    let mean_per_sweep: BTreeMap<String, f64> = per_sweep
+        .iter()
+        .map(|(k, v)| (k.clone(), v.iter().sum::<f64>() / v.len().max(1) as f64))
+        .collect();
+    let datasets = infos.iter().map(|m| m.runs as usize).sum();
     let report = Report {
-        methods: summaries(&all),
-        methods_near_mapped: summaries(&near),
+        methods: pooled.summaries(false),
+        methods_near_mapped: pooled.summaries(true),
         restricted_radius_cells: NEAR_MAPPED_CELLS,
-        datasets: files.len() * runs as usize,
+        datasets,
         maps: infos,
-        settings: serde_json::json!({ "sim": cfg, "seed": seed, "resolution_m": EVAL_RESOLUTION_M }),
+        settings: serde_json::json!({
+            "eval": cfg, "eval_cells": EVAL_CELLS,
+            "seconds_per_map_sample": mean_per_sweep, "skipped": skipped,
+        }),
         seconds,
     };
     report.write(&out.join("report.json"))?;
     println!("\n{}", report.table());
+    for (k, v) in &mean_per_sweep {
+        println!(
+            "{k}: {:.1} ms per map sample (K/L patch updates)",
+            v * 1000.0
+        );
+    }
     println!("wrote {}", out.join("report.json").display());
     Ok(())
+}
+
+/// Firmware-sized sampler buffers (see docs/benchmarks.md): for `eval-sim --firmware-bounds`.
+pub fn firmware_bounds() -> Bounds {
+    Bounds {
+        rays: Some(4096),
+        scans: Some(64),
+        local: Some(512),
+        u8_counts: true,
+    }
 }

@@ -6,11 +6,14 @@
 pub mod demo;
 pub mod eval;
 pub mod explore;
+pub mod firmware;
 pub mod lidar;
+pub mod link;
 pub mod metrics;
 pub mod prior;
 pub mod progress;
 pub mod render;
 pub mod report;
+pub mod sampling;
 pub mod sim;
 pub mod world;

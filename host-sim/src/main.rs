@@ -26,6 +26,9 @@ enum Commands {
         /// Random seed (world noise, exploration, lidar noise).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Also run the L = 1 and unconditioned L = 9 samplers (slower).
+        #[arg(long)]
+        all_samplers: bool,
     },
     /// Simulated datasets on ground-truth maps; writes report.json and PR-curve plots.
     EvalSim {
@@ -41,6 +44,19 @@ enum Commands {
         /// First random seed (run i of map j uses seed + 1000·j + i).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Methods besides traditional OGM: gibbs_l1, gibbs_l9, gibbs_l9_border (comma-separated),
+        /// or "none".
+        #[arg(long, default_value = "gibbs_l1,gibbs_l9,gibbs_l9_border")]
+        methods: String,
+        /// Sampler sweeps (map samples) counted after burn-in.
+        #[arg(long, default_value_t = 100)]
+        sweeps: u32,
+        /// Sampler burn-in sweeps.
+        #[arg(long, default_value_t = 20)]
+        burn_in: u32,
+        /// Use the firmware's compile-time buffer sizes (ray store, local list, u8 marginals).
+        #[arg(long)]
+        firmware_bounds: bool,
     },
     /// Train the data-driven patch prior on the real-map corpus and regenerate its tables.
     TrainPrior {
@@ -63,6 +79,9 @@ enum Commands {
         #[arg(long)]
         measure_walls: bool,
     },
+    /// Run the firmware in QEMU on a simulated run (LD06 bytes + pose frames in, map stream out)
+    /// and check its map against ogm-core on the host, cell for cell.
+    Firmware(host_sim::firmware::FirmwareArgs),
     /// Statistics of the compiled patch prior next to the paper's.
     PriorStats {
         /// JSON instead of a table.
@@ -71,16 +90,74 @@ enum Commands {
     },
 }
 
+#[allow(clippy::too_many_arguments)]
+fn eval_sim(
+    maps: &[PathBuf],
+    runs: u32,
+    out: &std::path::Path,
+    seed: u64,
+    methods: &str,
+    sweeps: u32,
+    burn_in: u32,
+    firmware_bounds: bool,
+) -> anyhow::Result<()> {
+    use host_sim::sampling::{SamplingConfig, Variant};
+    let mut variants = Vec::new();
+    for m in methods
+        .split(',')
+        .map(str::trim)
+        .filter(|m| !m.is_empty() && *m != "none")
+    {
+        match Variant::ALL.iter().find(|v| v.name() == m) {
+            Some(v) => variants.push(*v),
+            None => anyhow::bail!("--methods: unknown method `{m}` (expected gibbs_l1, gibbs_l9, gibbs_l9_border or none)"),
+        }
+    }
+    let mut sampling = SamplingConfig {
+        sweeps,
+        burn_in,
+        ..SamplingConfig::default()
+    };
+    if firmware_bounds {
+        sampling.bounds = host_sim::eval::firmware_bounds();
+    }
+    let cfg = host_sim::eval::EvalConfig {
+        runs,
+        seed,
+        variants,
+        sim: Default::default(),
+        sampling,
+    };
+    host_sim::eval::run_sim(maps, out, &cfg)
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Commands::Demo { out, seed } => host_sim::demo::run(&out, seed),
+        Commands::Demo {
+            out,
+            seed,
+            all_samplers,
+        } => host_sim::demo::run(&out, seed, all_samplers),
         Commands::EvalSim {
             maps,
             runs,
             out,
             seed,
-        } => host_sim::eval::run_sim(&maps, runs, &out, seed),
+            methods,
+            sweeps,
+            burn_in,
+            firmware_bounds,
+        } => eval_sim(
+            &maps,
+            runs,
+            &out,
+            seed,
+            &methods,
+            sweeps,
+            burn_in,
+            firmware_bounds,
+        ),
         Commands::TrainPrior {
             corpus,
             core_out,
@@ -96,6 +173,7 @@ fn main() -> ExitCode {
             }
         }
         Commands::PriorStats { json } => host_sim::prior::prior_stats_cmd(json),
+        Commands::Firmware(args) => host_sim::firmware::cli(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

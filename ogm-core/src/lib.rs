@@ -40,6 +40,8 @@ pub mod geometry;
 pub mod gibbs;
 pub mod grid;
 pub mod hal;
+pub mod ld06;
+pub mod link;
 pub mod mapper;
 pub mod patch;
 pub mod pipeline;
@@ -50,6 +52,7 @@ pub mod ray_store;
 #[cfg(feature = "reference")]
 pub mod reference;
 pub mod sensor_model;
+pub mod wire;
 
 pub use angle::Angle;
 pub use error::{Error, Result};

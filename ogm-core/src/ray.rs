@@ -66,21 +66,41 @@ impl Ray {
         self.start
     }
 
-    /// `(major, minor)` offset of step `i` from the start (both ≥ 0, before applying signs).
+    /// `(q, r)` with `2i·a + N = q·2N + r`, `0 ≤ r < 2N`: `q` is the minor offset of step `i`, `r`
+    /// the Bresenham remainder there. `(0, 0)` for `N = 0`.
+    ///
+    /// Uses the narrowest division that holds the operands: `i = 0` needs none, rays of up to
+    /// 46 000 steps fit `u32` (one `udiv` on a Cortex-M4), and only absurd (hostile) coordinates
+    /// reach the `u128` fallback.
     #[inline]
-    fn offsets(&self, i: u64) -> (u64, u64) {
-        if self.n == 0 {
+    fn quot_rem(&self, i: u64) -> (u64, u64) {
+        let n = self.n;
+        if n == 0 {
             return (0, 0);
         }
-        // u128: i · 2·minor_delta can exceed u64 for absurd (hostile) coordinates.
-        let q = (u128::from(i) * 2 * u128::from(self.minor_delta) + u128::from(self.n))
-            / (2 * u128::from(self.n));
-        (i, q as u64)
+        if i == 0 {
+            return (0, n);
+        }
+        // n < 2^33 (coordinates are i32), so 2n and 2a fit a u64.
+        let (two_n, two_a) = (2 * n, 2 * self.minor_delta);
+        match i.checked_mul(two_a).and_then(|p| p.checked_add(n)) {
+            Some(num) => match (u32::try_from(num), u32::try_from(two_n)) {
+                (Ok(num), Ok(den)) => (u64::from(num / den), u64::from(num % den)),
+                _ => (num / two_n, num % two_n),
+            },
+            None => {
+                let num = u128::from(i) * u128::from(two_a) + u128::from(n);
+                let den = u128::from(two_n);
+                // q ≤ i (as a ≤ N) and r < 2N: both fit a u64.
+                ((num / den) as u64, (num % den) as u64)
+            }
+        }
     }
 
-    /// The cell at step `i` (any `i`, even past the end: the line continues).
-    pub fn cell_at(&self, i: u64) -> CellCoord {
-        let (major, minor) = self.offsets(i);
+    /// The cell `major` steps along the major axis and `minor` along the minor one (saturating
+    /// at the `i32` range).
+    #[inline]
+    fn cell_at_offsets(&self, major: u64, minor: u64) -> CellCoord {
         let (ox, oy) = if self.x_major {
             (major, minor)
         } else {
@@ -92,9 +112,35 @@ impl Ray {
         }
     }
 
+    /// The cell at step `i` (any `i`, even past the end: the line continues).
+    pub fn cell_at(&self, i: u64) -> CellCoord {
+        if self.n == 0 {
+            return self.start;
+        }
+        self.cell_at_offsets(i, self.quot_rem(i).0)
+    }
+
     /// The steps (within `0..=N`) whose cells lie in `[0, width) × [0, height)`, or `None` if the
     /// ray misses the grid. Exact: a step is in the result iff its cell is inside.
     pub fn clip(&self, width: u16, height: u16) -> Option<Steps> {
+        // Every cell of the ray lies in the bounding box of its end cells (the major coordinate
+        // is monotone and the minor offset runs from 0 to a), so a ray with both ends inside is
+        // inside: the common case for a mapper whose robot is on the map, and division free.
+        let end = self.cell_at_offsets(self.n, self.minor_delta);
+        let inside = |c: CellCoord| {
+            c.x >= 0 && c.y >= 0 && c.x < i32::from(width) && c.y < i32::from(height)
+        };
+        if inside(self.start) && inside(end) {
+            return Some(Steps {
+                first: 0,
+                last: self.n,
+            });
+        }
+        self.clip_general(width, height)
+    }
+
+    /// [`Ray::clip`] for rays with an end outside the grid.
+    fn clip_general(&self, width: u16, height: u16) -> Option<Steps> {
         let (major_start, major_step, major_len, minor_start, minor_step, minor_len) =
             if self.x_major {
                 (
@@ -115,26 +161,38 @@ impl Ray {
                     width,
                 )
             };
+        // All of these fit an i64 with room to spare: |start| ≤ 2^31, len ≤ 2^16, N, a < 2^33.
         // Major axis: coordinate = s + sign·i must be in [0, len-1].
         let (lo, hi) = axis_interval(major_start, major_step, major_len);
         // Minor axis: offset q(i) must be in [qlo, qhi].
         let (qlo, qhi) = axis_interval(minor_start, minor_step, minor_len);
-        let n = i128::from(self.n);
+        let n = self.n as i64;
+        let a = self.minor_delta as i64;
         let (mut first, mut last) = (lo.max(0), hi.min(n));
-        if self.n == 0 || self.minor_delta == 0 {
+        if first > last {
+            return None;
+        }
+        if a == 0 {
+            // Also covers N = 0: the minor offset is 0 at every step.
             if !(qlo <= 0 && 0 <= qhi) {
                 return None;
             }
         } else {
             // q(i) = floor((2ia + N) / 2N) ≥ qlo  ⟺  i ≥ ceil((2N·qlo − N) / 2a)
             // q(i) ≤ qhi                          ⟺  i ≤ ceil((2N·(qhi+1) − N) / 2a) − 1
-            let a2 = 2 * i128::from(self.minor_delta);
-            first = first.max(ceil_div(2 * n * qlo - n, a2));
-            last = last.min(ceil_div(2 * n * (qhi + 1) - n, a2) - 1);
+            // q(i) ≥ 0 for every step, so the first bound only matters if qlo > 0; q(i) ≤ a,
+            // so the second only matters if qhi < a (otherwise it is ≥ N).
+            if qlo > 0 {
+                first = first.max(ceil_div_affine(2 * n, qlo, -n, 2 * a));
+            }
+            if qhi < a {
+                last = last.min(ceil_div_affine(2 * n, qhi + 1, -n, 2 * a) - 1);
+            }
         }
-        if first > last || last < 0 {
+        if first > last {
             return None;
         }
+        // 0 ≤ first ≤ last ≤ N.
         Some(Steps {
             first: first as u64,
             last: last as u64,
@@ -153,41 +211,232 @@ impl Ray {
         });
     }
 
-    /// [`Ray::for_each_index`] that stops as soon as `f` returns `false`.
+    /// Row-major index (in a grid `width` wide) and `(q, r)` (see [`Ray::quot_rem`]) of step
+    /// `i`. Wrapping: only meaningful for in-grid cells, but panic-free for any input.
     #[inline]
+    fn index_at(&self, i: u64, width: u16) -> (usize, (u64, u64)) {
+        let qr = self.quot_rem(i);
+        let c = if self.n == 0 {
+            self.start
+        } else {
+            self.cell_at_offsets(i, qr.0)
+        };
+        let index = (c.y as isize as usize)
+            .wrapping_mul(usize::from(width))
+            .wrapping_add(c.x as isize as usize);
+        (index, qr)
+    }
+
+    /// Strides of the row-major index for a step along the major and along the minor axis
+    /// (two's complement, to be added with wrapping arithmetic).
+    #[inline]
+    fn strides(&self, width: u16) -> (usize, usize) {
+        let sx = self.step_x as isize as usize;
+        let sy = (self.step_y as isize as usize).wrapping_mul(usize::from(width));
+        if self.x_major {
+            (sx, sy)
+        } else {
+            (sy, sx)
+        }
+    }
+
+    /// The 32-bit walk over `steps` (from [`Ray::clip`] with the same `width`), or `None` if
+    /// `2N` or the number of steps does not fit an `i32`/`u32` (rays from more than 2^30 cells
+    /// away; [`Ray::for_each_index`] still handles those).
+    #[inline]
+    pub(crate) fn index_walk(&self, steps: Steps, width: u16) -> Option<IndexWalk> {
+        let two_n = i32::try_from(2 * self.n).ok()?;
+        let left = u32::try_from(steps.last.saturating_sub(steps.first) + 1).ok()?;
+        let (index, rem) = if steps.first == 0 {
+            // The usual case (the walk starts at the ray's first cell): no division at all.
+            let s = self.start;
+            let index = (s.y as isize as usize)
+                .wrapping_mul(usize::from(width))
+                .wrapping_add(s.x as isize as usize);
+            // quot_rem(0) = (0, N).
+            (index, self.n)
+        } else {
+            let (index, (_, rem)) = self.index_at(steps.first, width);
+            (index, rem)
+        };
+        let (major, minor) = self.strides(width);
+        Some(IndexWalk {
+            index,
+            // rem < 2N ≤ i32::MAX.
+            g: two_n - 1 - rem as i32,
+            // 2a ≤ 2N.
+            two_a: (2 * self.minor_delta) as i32,
+            two_n,
+            major,
+            minor,
+            left,
+        })
+    }
+
+    /// [`Ray::for_each_index`] that stops as soon as `f` returns `false`.
+    ///
+    /// Two loops with the same sequence: [`IndexWalk`]'s 32-bit state whenever `2N` fits an
+    /// `i32` (always for a ray between cells of a `u16` grid, and for any ray that crosses one
+    /// from up to 2^30 cells away), which a 32-bit core keeps in registers; otherwise `u64`.
+    #[inline(always)]
     fn walk(&self, steps: Steps, width: u16, mut f: impl FnMut(u64, usize) -> bool) {
-        let w = width as isize;
-        let (major_stride, minor_stride) = if self.x_major {
-            (self.step_x as isize, self.step_y as isize * w)
-        } else {
-            (self.step_y as isize * w, self.step_x as isize)
-        };
-        let c = self.cell_at(steps.first);
-        // In-grid (the steps come from `clip`), so this fits an isize; every later full step is
-        // in-grid too, so the running index never overflows.
-        let mut index = c.y as isize * w + c.x as isize;
-        // Coordinates are i32, so N < 2^33 and 2N, 2a, rem + 2a all fit a u64.
+        if let Some(mut wk) = self.index_walk(steps, width) {
+            let mut k = 0u32;
+            loop {
+                if !f(steps.first.wrapping_add(u64::from(k)), wk.index) || wk.left <= 1 {
+                    break;
+                }
+                wk.left -= 1;
+                k = k.wrapping_add(1);
+                wk.advance();
+            }
+            return;
+        }
+        self.walk_u64(steps, width, f);
+    }
+
+    /// [`Ray::walk`] with `u64` state, for any ray (the fallback when `2N` exceeds an `i32`).
+    fn walk_u64(&self, steps: Steps, width: u16, mut f: impl FnMut(u64, usize) -> bool) {
+        let (mut index, (_, mut rem)) = self.index_at(steps.first, width);
+        let (major_stride, minor_stride) = self.strides(width);
         let (two_n, two_a) = (2 * self.n, 2 * self.minor_delta);
-        // Remainder of (2ia + N) / 2N at the first step; the minor offset increments when it
-        // reaches 2N.
-        let mut rem = if self.n == 0 {
-            0
-        } else {
-            ((u128::from(steps.first) * u128::from(two_a) + u128::from(self.n)) % u128::from(two_n))
-                as u64
-        };
+        // 2N < 2^34, so rem + 2a < 2^35 fits.
         let mut i = steps.first;
         loop {
-            if !f(i, index as usize) || i >= steps.last {
+            if !f(i, index) || i >= steps.last {
                 break;
             }
             i += 1;
-            index += major_stride;
+            index = index.wrapping_add(major_stride);
             rem += two_a;
             if rem >= two_n {
                 rem -= two_n;
-                index += minor_stride;
+                index = index.wrapping_add(minor_stride);
             }
+        }
+    }
+}
+
+#[cfg(test)]
+impl Ray {
+    /// The original, all-`i128` clip: the reference the tiered [`Ray::clip`] is tested against.
+    pub(crate) fn clip_reference(&self, width: u16, height: u16) -> Option<Steps> {
+        let axis = |start: i32, sign: i32, len: u16| {
+            let (s, l) = (i128::from(start), i128::from(len) - 1);
+            if sign > 0 {
+                (-s, l - s)
+            } else {
+                (s - l, s)
+            }
+        };
+        let ceil_div = |p: i128, q: i128| -((-p).div_euclid(q));
+        let (major, minor) = if self.x_major {
+            (
+                axis(self.start.x, self.step_x, width),
+                axis(self.start.y, self.step_y, height),
+            )
+        } else {
+            (
+                axis(self.start.y, self.step_y, height),
+                axis(self.start.x, self.step_x, width),
+            )
+        };
+        let ((lo, hi), (qlo, qhi)) = (major, minor);
+        let n = i128::from(self.n);
+        let (mut first, mut last) = (lo.max(0), hi.min(n));
+        if self.n == 0 || self.minor_delta == 0 {
+            if !(qlo <= 0 && 0 <= qhi) {
+                return None;
+            }
+        } else {
+            let a2 = 2 * i128::from(self.minor_delta);
+            first = first.max(ceil_div(2 * n * qlo - n, a2));
+            last = last.min(ceil_div(2 * n * (qhi + 1) - n, a2) - 1);
+        }
+        if first > last || last < 0 {
+            return None;
+        }
+        Some(Steps {
+            first: first as u64,
+            last: last as u64,
+        })
+    }
+
+    /// The original, all-`u128`/`i128` `cell_at`.
+    pub(crate) fn cell_at_reference(&self, i: u64) -> CellCoord {
+        let (major, minor) = if self.n == 0 {
+            (0, 0)
+        } else {
+            let q = (u128::from(i) * 2 * u128::from(self.minor_delta) + u128::from(self.n))
+                / (2 * u128::from(self.n));
+            (i, q as u64)
+        };
+        let (ox, oy) = if self.x_major {
+            (major, minor)
+        } else {
+            (minor, major)
+        };
+        let off = |start: i32, sign: i32, k: u64| {
+            let v = i128::from(start) + i128::from(sign) * i128::from(k);
+            v.clamp(i128::from(i32::MIN), i128::from(i32::MAX)) as i32
+        };
+        CellCoord {
+            x: off(self.start.x, self.step_x, ox),
+            y: off(self.start.y, self.step_y, oy),
+        }
+    }
+}
+
+/// A walk along a ray's clipped steps with 32-bit Bresenham state: the mapper's hot loop.
+///
+/// Instead of the remainder `r ∈ [0, 2N)` it keeps `g = 2N − 1 − r`, also in `[0, 2N)`: the
+/// minor coordinate advances when `r + 2a ≥ 2N`, i.e. when `g − 2a < 0`, so a step is one
+/// subtraction and a sign test (which a Cortex-M4 gets from the subtraction's flags), and no
+/// intermediate value leaves `[−2N, 2N)`. (For `N = 0`, `g = −1` and the minor stride is added
+/// at every step, as the `u64` walk does; a clipped walk of such a ray has a single cell.)
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct IndexWalk {
+    /// Row-major index of the current cell.
+    index: usize,
+    g: i32,
+    two_a: i32,
+    two_n: i32,
+    major: usize,
+    minor: usize,
+    /// Cells left, the current one included (≥ 1 until [`IndexWalk::take`] took them all).
+    left: u32,
+}
+
+impl IndexWalk {
+    /// Row-major index of the current cell.
+    #[inline(always)]
+    pub(crate) fn index(&self) -> usize {
+        self.index
+    }
+
+    /// Cells left, the current one included.
+    #[inline(always)]
+    pub(crate) fn left(&self) -> u32 {
+        self.left
+    }
+
+    /// Claims up to `max` of the cells left (the caller then visits them with
+    /// [`IndexWalk::index`] and [`IndexWalk::advance`]); returns how many.
+    #[inline(always)]
+    pub(crate) fn take(&mut self, max: u32) -> u32 {
+        let m = self.left.min(max);
+        self.left -= m;
+        m
+    }
+
+    /// Moves to the next cell (past the last one the index is meaningless, but never panics).
+    #[inline(always)]
+    pub(crate) fn advance(&mut self) {
+        self.index = self.index.wrapping_add(self.major);
+        self.g -= self.two_a;
+        if self.g < 0 {
+            self.g += self.two_n;
+            self.index = self.index.wrapping_add(self.minor);
         }
     }
 }
@@ -215,10 +464,10 @@ impl Ray {
     }
 }
 
-/// Interval of offsets `k ≥ ?` such that `start + sign·k ∈ [0, len − 1]`.
-fn axis_interval(start: i32, sign: i32, len: u16) -> (i128, i128) {
-    let s = i128::from(start);
-    let l = i128::from(len) - 1;
+/// Interval of offsets `k` such that `start + sign·k ∈ [0, len − 1]`.
+fn axis_interval(start: i32, sign: i32, len: u16) -> (i64, i64) {
+    let s = i64::from(start);
+    let l = i64::from(len) - 1;
     if sign > 0 {
         (-s, l - s)
     } else {
@@ -226,14 +475,62 @@ fn axis_interval(start: i32, sign: i32, len: u16) -> (i128, i128) {
     }
 }
 
+/// `start + sign·k`, saturated to the `i32` range.
+#[inline]
 fn offset(start: i32, sign: i32, k: u64) -> i32 {
-    let v = i128::from(start) + i128::from(sign) * i128::from(k);
-    v.clamp(i128::from(i32::MIN), i128::from(i32::MAX)) as i32
+    // The common case in 32-bit arithmetic.
+    if let Ok(k) = i32::try_from(k) {
+        let v = if sign > 0 {
+            start.checked_add(k)
+        } else {
+            start.checked_sub(k)
+        };
+        if let Some(v) = v {
+            return v;
+        }
+    }
+    // k > i64::MAX lies beyond the i32 range in the direction of `sign` anyway.
+    let k = i64::try_from(k).unwrap_or(i64::MAX);
+    let v = if sign > 0 {
+        i64::from(start).saturating_add(k)
+    } else {
+        i64::from(start).saturating_sub(k)
+    };
+    v.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }
 
-/// ⌈p / q⌉ for q > 0.
-fn ceil_div(p: i128, q: i128) -> i128 {
-    -((-p).div_euclid(q))
+/// ⌈(m·q + c) / d⌉ for d > 0, clamped to ±2^62 (callers compare it with steps in [0, 2^33], so
+/// the clamp changes nothing, and subtracting 1 cannot overflow). Uses the narrowest division
+/// that holds the operands: `i32` (one `sdiv`) for rays near a `u16` grid, `i128` only for
+/// absurd coordinates.
+fn ceil_div_affine(m: i64, q: i64, c: i64, d: i64) -> i64 {
+    const LIMIT: i64 = 1 << 62;
+    match m.checked_mul(q).and_then(|p| p.checked_add(c)) {
+        Some(p) => match (i32::try_from(p), i32::try_from(d)) {
+            (Ok(p32), Ok(d32)) => {
+                match (p32.checked_div_euclid(d32), p32.checked_rem_euclid(d32)) {
+                    (Some(fl), Some(r)) => i64::from(fl) + i64::from(r != 0),
+                    _ => ceil_div_i64(p, d),
+                }
+            }
+            _ => ceil_div_i64(p, d),
+        }
+        .clamp(-LIMIT, LIMIT),
+        None => {
+            let p = i128::from(m) * i128::from(q) + i128::from(c);
+            let d = i128::from(d);
+            let v = -((-p).div_euclid(d));
+            v.clamp(-i128::from(LIMIT), i128::from(LIMIT)) as i64
+        }
+    }
+}
+
+/// ⌈p / d⌉ for d > 0 (0 if d ≤ 0, which callers never pass).
+fn ceil_div_i64(p: i64, d: i64) -> i64 {
+    match (p.checked_div_euclid(d), p.checked_rem_euclid(d)) {
+        (Some(fl), Some(r)) => fl + i64::from(r != 0),
+        _ => 0,
+    }
 }
 
 #[cfg(test)]
@@ -326,6 +623,76 @@ mod tests {
                 r.for_each_index(s, w, |i, idx| got.push((i, idx)));
             }
             prop_assert_eq!(got, want);
+        }
+    }
+
+    /// Any coordinates, from tiny to the whole i32 range.
+    fn coord() -> impl Strategy<Value = i32> {
+        prop_oneof![
+            -300i32..300,
+            -70_000i32..70_000,
+            any::<i32>(),
+            Just(i32::MIN),
+            Just(i32::MAX),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(3000))]
+
+        /// The tiered clip (fast path, i32/i64 divisions, i128 only when needed) equals the
+        /// original all-i128 one, for any coordinates and grid size.
+        #[test]
+        fn clip_matches_i128_reference(x0 in coord(), y0 in coord(), x1 in coord(), y1 in coord(),
+                                       w in prop_oneof![1u16..300, any::<u16>()],
+                                       h in prop_oneof![1u16..300, any::<u16>()]) {
+            prop_assume!(w > 0 && h > 0);
+            let r = Ray::new(c(x0, y0), c(x1, y1));
+            prop_assert_eq!(r.clip(w, h), r.clip_reference(w, h));
+            prop_assert_eq!(r.clip_general(w, h), r.clip_reference(w, h));
+        }
+
+        /// `cell_at` with narrow divisions equals the original u128 one, at any step (even past
+        /// the end, and at absurd step numbers).
+        #[test]
+        fn cell_at_matches_u128_reference(x0 in coord(), y0 in coord(), x1 in coord(), y1 in coord(),
+                                          i in prop_oneof![0u64..1000, 0u64..(1 << 34), any::<u64>()]) {
+            let r = Ray::new(c(x0, y0), c(x1, y1));
+            prop_assert_eq!(r.cell_at(i), r.cell_at_reference(i));
+            prop_assert_eq!(r.cell_at(r.steps()), r.cell_at_reference(r.steps()));
+        }
+
+        /// The 32-bit walk ([`IndexWalk`], what the mapper runs) visits exactly the (step,
+        /// index) sequence of the u64 walk, for clipped rays from near and far and for any
+        /// sub-range of their steps (which starts the walk with a division).
+        #[test]
+        fn fast_walk_matches_u64_walk(x0 in coord(), y0 in coord(), x1 in -400i32..400, y1 in -400i32..400,
+                                      w in 1u16..300, h in 1u16..300, cut in 0u64..400, keep in 0u64..400) {
+            let r = Ray::new(c(x0, y0), c(x1, y1));
+            let Some(full) = r.clip(w, h) else { return Ok(()); };
+            let first = (full.first + cut).min(full.last);
+            let s = Steps { first, last: (first + keep).min(full.last) };
+            let mut fast = Vec::new();
+            r.for_each_index(s, w, |i, idx| fast.push((i, idx)));
+            let mut slow = Vec::new();
+            r.walk_u64(s, w, |i, idx| { slow.push((i, idx)); true });
+            prop_assert_eq!(&fast, &slow);
+            // Chunked, as the mapper drives it.
+            if let Some(mut wk) = r.index_walk(s, w) {
+                let mut chunked = Vec::new();
+                while wk.left() > 0 {
+                    let m = wk.take(7);
+                    for _ in 0..m {
+                        chunked.push(wk.index());
+                        wk.advance();
+                    }
+                }
+                prop_assert_eq!(chunked, slow.iter().map(|&(_, idx)| idx).collect::<Vec<_>>());
+            }
+            // find_step stops at the first match, on both paths alike.
+            if let Some(&(step, idx)) = slow.get(slow.len() / 2) {
+                prop_assert_eq!(r.find_step(s, w, |i| i == idx), Some(step));
+            }
         }
     }
 }

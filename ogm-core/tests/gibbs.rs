@@ -310,7 +310,7 @@ fn fixed_point_marginals_match_f64_reference_sampler() {
         model,
         0.001,
         &map,
-        LogOdds::ZERO,
+        cfg.init_threshold, // both chains start from the same thresholded map
         &mut sample,
         &mut counts,
         9,

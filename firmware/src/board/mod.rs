@@ -107,6 +107,80 @@ impl<T> StaticBuf<T> {
     }
 }
 
+/// A `static` slot for a value that has no `const` constructor (the mapping state, built from
+/// the host's settings at run time): uninitialised in `.bss` (no flash, unlike a `StaticBuf`
+/// of `Option<T>`, whose `None` is not all zero bytes and so lands in `.data`), written once.
+pub struct StaticSlot<T> {
+    taken: AtomicBool,
+    value: UnsafeCell<core::mem::MaybeUninit<T>>,
+}
+
+// SAFETY: as for `StaticBuf`: `put` hands out at most one `&mut T`, ever.
+unsafe impl<T: Send> Sync for StaticSlot<T> {}
+
+impl<T> StaticSlot<T> {
+    /// An empty slot.
+    pub const fn new() -> Self {
+        StaticSlot {
+            taken: AtomicBool::new(false),
+            value: UnsafeCell::new(core::mem::MaybeUninit::uninit()),
+        }
+    }
+
+    /// Fills the slot with `make()`, the first time (`make` is not called afterwards:
+    /// `None`). Taking a constructor rather than a value lets the compiler build a large value
+    /// in place instead of on the stack first.
+    // `&self -> &mut T` is sound here: the atomic flag makes the `&mut` unique.
+    #[allow(clippy::mut_from_ref)]
+    pub fn put_with(&'static self, make: impl FnOnce() -> T) -> Option<&'static mut T> {
+        if self.taken.swap(true, Ordering::AcqRel) {
+            return None;
+        }
+        // SAFETY: the swap above returns `false` exactly once, so this is the only reference
+        // to the slot that is ever created; `write` initialises it before it is returned.
+        Some(unsafe { (*self.value.get()).write(make()) })
+    }
+}
+
+/// A `static` array of a type without a `const` constructor (the ogm-core buffer element types
+/// may grow fields; this needs only `Default`): uninitialised in `.bss`, filled element by
+/// element on first use (never built on the stack), handed out once.
+pub struct StaticArray<T, const N: usize> {
+    taken: AtomicBool,
+    value: UnsafeCell<core::mem::MaybeUninit<[T; N]>>,
+}
+
+// SAFETY: as for `StaticBuf`: `take_filled` hands out at most one `&mut`, ever.
+unsafe impl<T: Send, const N: usize> Sync for StaticArray<T, N> {}
+
+impl<T, const N: usize> StaticArray<T, N> {
+    /// An unfilled array.
+    pub const fn new() -> Self {
+        StaticArray {
+            taken: AtomicBool::new(false),
+            value: UnsafeCell::new(core::mem::MaybeUninit::uninit()),
+        }
+    }
+
+    /// The array with every element set to `fill()`, the first time; `None` afterwards.
+    // `&self -> &mut T` is sound here: the atomic flag makes the `&mut` unique.
+    #[allow(clippy::mut_from_ref)]
+    pub fn take_filled(&'static self, fill: impl Fn() -> T) -> Option<&'static mut [T; N]> {
+        if self.taken.swap(true, Ordering::AcqRel) {
+            return None;
+        }
+        let first = self.value.get().cast::<T>();
+        for i in 0..N {
+            // SAFETY: `MaybeUninit<[T; N]>` has the layout of `[T; N]`, so element `i < N` is
+            // in bounds; nothing else can access the array (the swap above succeeds once), and
+            // `write` does not read or drop the uninitialised old value.
+            unsafe { first.add(i).write(fill()) };
+        }
+        // SAFETY: all N elements were initialised above; this is the only reference.
+        Some(unsafe { &mut *self.value.get().cast::<[T; N]>() })
+    }
+}
+
 /// Stack size and high-water mark, from cortex-m-rt's `paint-stack` feature: the runtime fills
 /// `[_stack_end, _stack_start)` (from the end of `.bss`/`.uninit` to the top of RAM) with
 /// `0xCCCC_CCCC` before `main`; the lowest word that no longer holds the paint is the deepest

@@ -140,6 +140,12 @@ impl Uart {
         };
         bauddiv.write((SYSCLK_HZ / baud).max(16));
         ctrl.write(CTRL_TX_EN | CTRL_RX_EN);
+        // QEMU's CMSDK UART asks its character backend for input only when DATA is read (that
+        // read calls `qemu_chr_fe_accept_input`); enabling RX alone does not. A backend that
+        // was polled while RX was still disabled at reset (a socket that connected before the
+        // guest ran) would otherwise never deliver a byte. On hardware this read just
+        // discards a stale byte.
+        let _ = data.read();
         Uart { data, state }
     }
 

@@ -1,0 +1,86 @@
+//! Every large buffer of the firmware: zero-initialised `static`s in `.bss` (no heap, never built
+//! on the stack), handed out once. Sizes come from `ogm_core::wire::firmware_sizes`, the single
+//! place the host's replay also reads them from. The layout and its justification are in
+//! docs/firmware.md ("RAM layout").
+
+use crate::board::{StaticArray, StaticBuf, StaticSlot};
+use ogm_core::gibbs::{block_words, LocalRay};
+use ogm_core::mapper::marks_len;
+use ogm_core::ray_store::{StoredRay, StoredScan};
+use ogm_core::wire::firmware_sizes as sz;
+use ogm_core::wire::{MAX_DEVICE_FRAME, MAX_TILE_BYTES};
+use ogm_core::{LogOdds, ScanBuf};
+
+/// Cells of the map.
+pub const CELLS: usize = sz::CELLS;
+/// Words of the mapper's per-scan mark bitset.
+pub const MARK_WORDS: usize = marks_len(CELLS);
+/// Words of the sampler's map sample (one bit per cell).
+pub const SAMPLE_WORDS: usize = CELLS.div_ceil(32);
+
+/// The log-odds map: 256 × 256 × 2 B = 128 KiB.
+static GRID: StaticBuf<[LogOdds; CELLS]> = StaticBuf::new([LogOdds::ZERO; CELLS]);
+/// The mapper's "touched in this scan" bits: 8 KiB.
+static MARKS: StaticBuf<[u32; MARK_WORDS]> = StaticBuf::new([0; MARK_WORDS]);
+/// The sampler's current map sample: 8 KiB.
+static SAMPLE: StaticBuf<[u32; SAMPLE_WORDS]> = StaticBuf::new([0; SAMPLE_WORDS]);
+/// The sampler's marginal counts, `u8`: 64 KiB.
+static COUNTS: StaticBuf<[u8; CELLS]> = StaticBuf::new([0; CELLS]);
+/// The ray store's rays: 6 B each.
+static RAYS: StaticArray<StoredRay, { sz::RAYS }> = StaticArray::new();
+/// The ray store's scans: 20 B each.
+static SCANS: StaticArray<StoredScan, { sz::SCANS }> = StaticArray::new();
+/// The sampler's per-tile ray list: 24 B each.
+static LOCAL: StaticArray<LocalRay, { sz::LOCAL_RAYS }> = StaticArray::new();
+/// Which local rays touch which 4×4 block of a tile visit: one bit per (block, ray).
+pub const BLOCK_WORDS: usize = block_words(sz::LOCAL_RAYS);
+static BLOCKS: StaticBuf<[u32; BLOCK_WORDS]> = StaticBuf::new([0; BLOCK_WORDS]);
+/// The scan being received: 12 B per beam.
+static SCAN: StaticBuf<ScanBuf<{ sz::MAX_BEAMS }>> = StaticBuf::new(ScanBuf::new());
+/// One encoded outgoing frame.
+static TX: StaticBuf<[u8; MAX_DEVICE_FRAME]> = StaticBuf::new([0; MAX_DEVICE_FRAME]);
+/// One tile's cells, before encoding.
+static TILE: StaticBuf<[u8; MAX_TILE_BYTES]> = StaticBuf::new([0; MAX_TILE_BYTES]);
+
+/// The mapping state itself (~2.5 KiB, mostly the sampler's forward-model tables): a `static`
+/// too, so it lives in no stack frame.
+pub static MACHINE: StaticSlot<Option<crate::app::Machine>> = StaticSlot::new();
+
+/// The mapping state's buffers (used once the host's settings are known).
+pub struct MapBuffers {
+    pub grid: &'static mut [LogOdds; CELLS],
+    pub marks: &'static mut [u32; MARK_WORDS],
+    pub sample: &'static mut [u32; SAMPLE_WORDS],
+    pub counts: &'static mut [u8; CELLS],
+    pub rays: &'static mut [StoredRay; sz::RAYS],
+    pub scans: &'static mut [StoredScan; sz::SCANS],
+    pub local: &'static mut [LocalRay; sz::LOCAL_RAYS],
+    pub blocks: &'static mut [u32; BLOCK_WORDS],
+}
+
+/// All of it.
+pub struct Buffers {
+    pub map: MapBuffers,
+    pub scan: &'static mut ScanBuf<{ sz::MAX_BEAMS }>,
+    pub tx: &'static mut [u8; MAX_DEVICE_FRAME],
+    pub tile: &'static mut [u8; MAX_TILE_BYTES],
+}
+
+/// The buffers, the first time; `None` afterwards.
+pub fn take() -> Option<Buffers> {
+    Some(Buffers {
+        map: MapBuffers {
+            grid: GRID.take()?,
+            marks: MARKS.take()?,
+            sample: SAMPLE.take()?,
+            counts: COUNTS.take()?,
+            rays: RAYS.take_filled(StoredRay::default)?,
+            scans: SCANS.take_filled(StoredScan::default)?,
+            local: LOCAL.take_filled(LocalRay::default)?,
+            blocks: BLOCKS.take()?,
+        },
+        scan: SCAN.take()?,
+        tx: TX.take()?,
+        tile: TILE.take()?,
+    })
+}

@@ -1,0 +1,1221 @@
+//! `host-sim firmware`: the firmware in QEMU on a simulated run, checked cell for cell against
+//! ogm-core on the host.
+//!
+//! 1. A world that fits the firmware's 256 × 256 grid (generated, or `--map` cropped), explored
+//!    with the simulator's lidar ([`crate::sim::simulate`]).
+//! 2. The robot's input ([`crate::link::encode_run`]): settings, then per scan `ScanStart`
+//!    (known pose), the scan as LD06 packets, `ScanEnd`; `Finish`. Optionally with garbage.
+//! 3. The ELF (`scripts/firmware.sh build`, or `--elf`) boots in QEMU mps2-an386
+//!    (`scripts/firmware.sh qemu`, `-icount shift=0`, defmt decoded into the log) with UART1 on a
+//!    Unix socket: the input goes in, the map stream comes out.
+//! 4. **Replay**: the same input bytes go through the same ogm-core code on the host — link
+//!    demultiplexer, mapper, ray store, sampler with the firmware's compile-time sizes, the seed
+//!    from the settings and exactly the number of sampler updates the firmware reported per scan
+//!    — and every report, every streamed tile (at the time it was sent) and the final map
+//!    (log-odds, marginal counts, sample) must be identical.
+//! 5. Figures: instructions per cell update / scan / sampled patch (QEMU `-icount shift=0`: one
+//!    instruction = 1 ns of the board's timer), stack high-water mark, stream size.
+//!
+//! `--accuracy` adds the cost of the firmware's bounds: the same replay with unbounded buffers
+//! (every ray, every scan, no per-tile list limit, `u32` counts), both scored against ground
+//! truth like `eval-sim`.
+
+use std::collections::{BTreeMap, HashMap};
+use std::io::{Read, Write};
+use std::os::unix::net::UnixListener;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, bail, ensure, Context};
+use ogm_core::gibbs::{
+    block_words, BorderPrior, Buffers as SamplerBuffers, Count, Gibbs, LocalRay,
+};
+use ogm_core::link::{LinkRx, Step};
+use ogm_core::mapper::marks_len;
+use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::wire::{
+    firmware_sizes as fw, Budget, Counters, Done, Layer, RunConfig, SamplerReport, ScanReport,
+    StoreReport,
+};
+use ogm_core::{LogOdds, LogOddsGrid, Mapper, ScanBuf};
+use serde::Serialize;
+
+use crate::eval::{evaluate_methods, MethodMaps};
+use crate::link::{encode_run, DeviceEvent, HelloInfo, OwnedTile, StreamDecoder, StreamedMap};
+use crate::metrics::Summary;
+use crate::sim::{simulate, SimConfig};
+use crate::world::{generate, load_world, GenParams, World};
+
+/// Command-line options of `host-sim firmware`.
+#[derive(Clone, Debug, clap::Args)]
+pub struct FirmwareArgs {
+    /// Seed: world (when generated), exploration, lidar noise and the sampler.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Ground-truth map (PNG/PGM/YAML); resampled to 5 cm and cropped to 256 × 256 cells.
+    /// Default: a generated 12.8 m building.
+    #[arg(long)]
+    pub map: Option<PathBuf>,
+    /// Firmware ELF (default: build it with scripts/firmware.sh build).
+    #[arg(long)]
+    pub elf: Option<PathBuf>,
+    /// Use only the first N scans.
+    #[arg(long)]
+    pub max_scans: Option<usize>,
+    /// Sampler time budget per scan, µs of the board's timer (under -icount shift=0 one µs is
+    /// 1000 instructions: 6400 = what a 64 MHz Cortex-M4 executes between two 10 Hz scans).
+    #[arg(long, default_value_t = 6400)]
+    pub period_us: u32,
+    /// Upper bound of sampler updates per scan under the time budget.
+    #[arg(long, default_value_t = 20_000)]
+    pub max_updates: u32,
+    /// A fixed number of sampler updates per scan instead of the time budget.
+    #[arg(long)]
+    pub fixed_updates: Option<u32>,
+    /// Log-odds tiles streamed per scan.
+    #[arg(long, default_value_t = 8)]
+    pub tiles_per_scan: u16,
+    /// Marginal-count tiles streamed per scan.
+    #[arg(long, default_value_t = 8)]
+    pub count_tiles_per_scan: u16,
+    /// Mix garbage into the input (the firmware must skip it; the comparison still holds).
+    #[arg(long)]
+    pub garbage: bool,
+    /// QEMU timeout, seconds.
+    #[arg(long, default_value_t = 300)]
+    pub timeout: u64,
+    /// Also score the firmware's bounded sampler against an unbounded host sampler (ground
+    /// truth, like eval-sim).
+    #[arg(long)]
+    pub accuracy: bool,
+    /// No QEMU: only the host replays (for --accuracy; needs --fixed-updates).
+    #[arg(long)]
+    pub host_only: bool,
+    /// Write report.json (and the raw stream) here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Show QEMU's output (decoded defmt log) instead of writing it to a log file.
+    #[arg(long)]
+    pub verbose: bool,
+    /// Only decode a captured map stream (e.g. firmware/target/qemu/uart1.out) and summarise it.
+    #[arg(long)]
+    pub decode: Option<PathBuf>,
+}
+
+impl Default for FirmwareArgs {
+    fn default() -> Self {
+        FirmwareArgs {
+            seed: 1,
+            map: None,
+            elf: None,
+            max_scans: None,
+            period_us: 6400,
+            max_updates: 20_000,
+            fixed_updates: None,
+            tiles_per_scan: 8,
+            count_tiles_per_scan: 8,
+            garbage: false,
+            timeout: 300,
+            accuracy: false,
+            host_only: false,
+            out: None,
+            verbose: false,
+            decode: None,
+        }
+    }
+}
+
+/// Instruction counts (QEMU `-icount shift=0`: 1 ns of board time = 1 instruction).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Figures {
+    /// Scans processed.
+    pub scans: u32,
+    /// Mean beams per scan.
+    pub beams_per_scan: f64,
+    /// Mean cells updated per scan.
+    pub cells_per_scan: f64,
+    /// Log-odds update: instructions per scan (mean).
+    pub insert_per_scan: f64,
+    /// … the largest.
+    pub insert_per_scan_max: u64,
+    /// … per updated cell.
+    pub insert_per_cell: f64,
+    /// Ray store add + first-occupied refresh, per scan.
+    pub store_per_scan: f64,
+    /// Sampler patch updates in total.
+    pub sampler_updates: u64,
+    /// Sampler updates per scan (mean).
+    pub updates_per_scan: f64,
+    /// Instructions per sampled patch (amortised: tile visits' ray gathering included).
+    pub per_patch: f64,
+    /// Stack high-water mark, bytes.
+    pub stack_used: u32,
+    /// Stack size, bytes.
+    pub stack_size: u32,
+}
+
+/// The outcome of one `host-sim firmware` run.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct FirmwareReport {
+    /// The firmware's boot message.
+    pub hello: Option<HelloInfo>,
+    /// Settings sent.
+    pub config: Option<RunConfig>,
+    /// Scans sent.
+    pub scans_sent: usize,
+    /// Bytes sent to the robot (garbage included).
+    pub input_bytes: usize,
+    /// Garbage bytes mixed in.
+    pub garbage_bytes: usize,
+    /// Map-stream bytes received.
+    pub stream_bytes: u64,
+    /// Map-stream frames (and bad ones).
+    pub stream_frames: u64,
+    /// Bad frames in the stream.
+    pub stream_bad_frames: u64,
+    /// Tiles received.
+    pub tiles: u64,
+    /// Error messages the firmware sent.
+    pub device_errors: usize,
+    /// The firmware's final counters.
+    pub counters: Option<Counters>,
+    /// The firmware's final sampler statistics.
+    pub sampler: Option<SamplerReport>,
+    /// The firmware's `Done`.
+    pub done: Option<Done>,
+    /// QEMU's exit status (the firmware's exit code).
+    pub exit_code: Option<i32>,
+    /// Wall-clock seconds in QEMU.
+    pub qemu_seconds: f64,
+    /// Instruction counts.
+    pub figures: Figures,
+    /// Differences between the firmware and the host replay (empty = identical).
+    pub mismatches: Vec<String>,
+    /// Comparisons made (reports, tiles, cells).
+    pub checks: u64,
+    /// Accuracy of the firmware's bounds vs the unbounded host configuration (`--accuracy`).
+    pub accuracy: Option<Accuracy>,
+    /// Where QEMU's log went.
+    pub log: Option<PathBuf>,
+}
+
+impl FirmwareReport {
+    /// Whether the firmware's map equals the host's, cell for cell (and it ran to the end).
+    pub fn identical(&self) -> bool {
+        self.mismatches.is_empty() && self.done.is_some() && self.checks > 0
+    }
+}
+
+/// `--accuracy`: metrics of the three maps of the same run.
+#[derive(Clone, Debug, Serialize)]
+pub struct Accuracy {
+    /// All cells with known truth.
+    pub methods: BTreeMap<String, Summary>,
+    /// Cells within 10 cells of a mapped cell.
+    pub methods_near_mapped: BTreeMap<String, Summary>,
+    /// Sampler statistics of the bounded run.
+    pub bounded: SamplerReport,
+    /// … of the unbounded run.
+    pub unbounded: SamplerReport,
+    /// Sampler updates per scan used.
+    pub updates: Vec<u32>,
+}
+
+/// Buffer sizes of a replay.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sizes {
+    /// Ray store rays.
+    pub rays: usize,
+    /// Ray store scans.
+    pub scans: usize,
+    /// Per-tile ray list.
+    pub local: usize,
+}
+
+/// The firmware's compile-time sizes.
+pub const FIRMWARE_SIZES: Sizes = Sizes {
+    rays: fw::RAYS,
+    scans: fw::SCANS,
+    local: fw::LOCAL_RAYS,
+};
+
+/// The mapping state of a replay: what the firmware's `app::Machine` holds, in `Vec`s.
+pub struct Replay<N: Count> {
+    config: RunConfig,
+    mapper: Mapper<Vec<LogOdds>, Vec<u32>>,
+    store: RayStore<Vec<StoredScan>, Vec<StoredRay>>,
+    gibbs: Gibbs<BorderPrior, Vec<u32>, Vec<N>, Vec<LocalRay>, Vec<u32>, N>,
+}
+
+impl<N: Count> Replay<N> {
+    /// Built exactly as the firmware builds it (same order, same calls).
+    pub fn new(config: RunConfig, sizes: Sizes) -> anyhow::Result<Self> {
+        let e = |what: &str, err: ogm_core::Error| anyhow!("{what}: {err}");
+        let geometry = config
+            .geometry(fw::WIDTH, fw::HEIGHT)
+            .map_err(|x| e("geometry", x))?;
+        let grid = LogOddsGrid::new(geometry, vec![LogOdds::ZERO; geometry.len()])
+            .map_err(|x| e("grid", x))?;
+        let mapper = Mapper::new(
+            grid,
+            vec![0; marks_len(geometry.len())],
+            config.mapper_config(),
+        )
+        .map_err(|x| e("mapper", x))?;
+        let forward = config.forward_model().map_err(|x| e("forward model", x))?;
+        let mut store = RayStore::new(
+            geometry,
+            config.max_range_mm,
+            config.min_range_mm,
+            vec![StoredScan::default(); sizes.scans],
+            vec![StoredRay::default(); sizes.rays],
+        )
+        .map_err(|x| e("ray store", x))?;
+        let mut gibbs = Gibbs::new(
+            geometry,
+            BorderPrior,
+            forward,
+            config.sampler_config(),
+            SamplerBuffers {
+                sample: vec![0; geometry.len().div_ceil(32)],
+                counts: vec![N::default(); geometry.len()],
+                local: vec![LocalRay::default(); sizes.local],
+                blocks: vec![0; block_words(sizes.local)],
+            },
+        )
+        .map_err(|x| e("sampler", x))?;
+        gibbs
+            .reset(mapper.grid().cells(), &mut store)
+            .map_err(|x| e("sampler reset", x))?;
+        Ok(Replay {
+            config,
+            mapper,
+            store,
+            gibbs,
+        })
+    }
+
+    /// The firmware's `process_scan`, minus the timing.
+    pub fn scan(
+        &mut self,
+        seq: u32,
+        pose: &ogm_core::Pose,
+        beams: &[ogm_core::Beam],
+        overflow: u32,
+        updates: u32,
+    ) -> (ScanReport, bool) {
+        let mut r = ScanReport {
+            seq,
+            pose: (*pose).into(),
+            beams: beams.len() as u32,
+            beams_overflowed: overflow,
+            sampler_updates: updates,
+            ..ScanReport::default()
+        };
+        let inserted = self.mapper.insert_scan(pose, beams);
+        let range = self.store.add_scan(pose, beams);
+        r.rays_stored = range.len() as u32;
+        self.gibbs.refresh_rays(&mut self.store, range);
+        self.gibbs.step(&mut self.store, updates);
+        let ok = match inserted {
+            Ok(s) => {
+                r.set_scan_stats(&s);
+                true
+            }
+            Err(_) => false,
+        };
+        (r, ok)
+    }
+
+    /// The sampler/store report the firmware sends.
+    pub fn sampler_report(&self) -> SamplerReport {
+        let store = StoreReport::new(
+            &self.store.stats(),
+            self.store.decimation(),
+            self.store.scans().len(),
+            self.store.rays().len(),
+        );
+        SamplerReport::new(&self.gibbs.stats(), self.gibbs.samples(), store)
+    }
+
+    /// A tile's bytes as the firmware encodes them.
+    pub fn tile(
+        &self,
+        map: &StreamedMap,
+        layer: Layer,
+        tx: u16,
+        ty: u16,
+    ) -> anyhow::Result<Vec<u8>> {
+        let cells = map.tile_cells(tx, ty)?;
+        let grid = self.mapper.grid().cells();
+        Ok(match layer {
+            Layer::LogOdds => cells
+                .iter()
+                .flat_map(|&i| grid[i].raw().to_le_bytes())
+                .collect(),
+            Layer::Counts => cells
+                .iter()
+                .map(|&i| self.gibbs.count(i).min(255) as u8)
+                .collect(),
+            Layer::Sample => {
+                let mut v = vec![0u8; cells.len().div_ceil(8)];
+                for (k, &i) in cells.iter().enumerate() {
+                    if self.gibbs.occupied(i) {
+                        v[k / 8] |= 1 << (k % 8);
+                    }
+                }
+                v
+            }
+        })
+    }
+
+    /// Marginal p(occupied) per cell (0.5 before the first sample).
+    pub fn marginals(&self) -> Vec<f64> {
+        (0..self.mapper.grid().cells().len())
+            .map(|i| self.gibbs.marginal(i).map_or(0.5, f64::from))
+            .collect()
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &RunConfig {
+        &self.config
+    }
+}
+
+/// The firmware's messages grouped by scan.
+#[derive(Default)]
+struct Groups {
+    scans: HashMap<u32, ScanGroup>,
+    final_tiles: Vec<OwnedTile>,
+    final_sampler: Option<SamplerReport>,
+    final_counters: Option<Counters>,
+    done: Option<Done>,
+    hello: Option<HelloInfo>,
+    configured: Option<RunConfig>,
+    errors: usize,
+    all_tiles: Vec<OwnedTile>,
+}
+
+#[derive(Default)]
+struct ScanGroup {
+    report: ScanReport,
+    tiles: Vec<OwnedTile>,
+    sampler: Option<SamplerReport>,
+    counters: Option<Counters>,
+}
+
+impl Groups {
+    fn of(events: &[DeviceEvent]) -> Groups {
+        let mut g = Groups::default();
+        let mut current: Option<u32> = None;
+        for ev in events {
+            match ev {
+                DeviceEvent::Hello(h) => g.hello = Some(h.clone()),
+                DeviceEvent::Configured(c) => g.configured = Some(*c),
+                DeviceEvent::Scan(r) => {
+                    g.scans.insert(
+                        r.seq,
+                        ScanGroup {
+                            report: *r,
+                            ..ScanGroup::default()
+                        },
+                    );
+                    current = Some(r.seq);
+                }
+                DeviceEvent::Tile(t) => {
+                    g.all_tiles.push(t.clone());
+                    match current.and_then(|s| g.scans.get_mut(&s)) {
+                        Some(s) => s.tiles.push(t.clone()),
+                        None => g.final_tiles.push(t.clone()),
+                    }
+                }
+                DeviceEvent::Sampler(r) => match current.and_then(|s| g.scans.get_mut(&s)) {
+                    Some(s) => s.sampler = Some(*r),
+                    None => g.final_sampler = Some(*r),
+                },
+                DeviceEvent::Counters(c) => {
+                    match current.take().and_then(|s| g.scans.get_mut(&s)) {
+                        Some(s) => s.counters = Some(*c),
+                        None => g.final_counters = Some(*c),
+                    }
+                }
+                DeviceEvent::Error(_) => g.errors += 1,
+                DeviceEvent::Done(d) => g.done = Some(*d),
+            }
+        }
+        g
+    }
+}
+
+/// Collects mismatches (bounded) and counts checks.
+#[derive(Default)]
+struct Checker {
+    mismatches: Vec<String>,
+    checks: u64,
+}
+
+impl Checker {
+    fn eq<T: PartialEq + std::fmt::Debug>(
+        &mut self,
+        what: impl FnOnce() -> String,
+        fw: &T,
+        host: &T,
+    ) {
+        self.checks += 1;
+        if fw != host && self.mismatches.len() < 50 {
+            self.mismatches
+                .push(format!("{}: firmware {fw:?}, host {host:?}", what()));
+        }
+    }
+
+    fn fail(&mut self, msg: String) {
+        if self.mismatches.len() < 50 {
+            self.mismatches.push(msg);
+        }
+    }
+}
+
+/// What the replay driver reports per scan.
+enum ReplayEvent<'a, N: Count> {
+    /// Scan `seq` was processed (before the byte's end).
+    Scan(u32, &'a ScanReport, &'a Replay<N>),
+    /// After the byte that completed scan `seq`: the firmware reports its statistics here.
+    AfterScan(u32, &'a Counters, &'a Replay<N>),
+}
+
+/// Runs the robot's input through the firmware's logic on the host: byte by byte through
+/// `LinkRx` (as the firmware does), `updates(seq)` sampler updates after each scan.
+fn replay<N: Count>(
+    input: &[u8],
+    sizes: Sizes,
+    updates: impl Fn(u32) -> Option<u32>,
+    mut hook: impl FnMut(ReplayEvent<'_, N>),
+) -> anyhow::Result<(Option<Replay<N>>, Counters)> {
+    let mut rx = LinkRx::new();
+    let mut scan: Box<ScanBuf<{ fw::MAX_BEAMS }>> = Box::default();
+    let mut machine: Option<Replay<N>> = None;
+    let mut configured = false;
+    let mut counters = Counters::default();
+    let mut missing = None;
+    for &b in input {
+        let mut after = None;
+        let mut finish = false;
+        rx.feed(std::slice::from_ref(&b), &mut scan, |step| match step {
+            Step::Config(c) => {
+                if configured {
+                    counters.errors += 1; // ConfigTwice
+                    return;
+                }
+                configured = true;
+                match Replay::new(c, sizes) {
+                    Ok(m) => machine = Some(m),
+                    Err(_) => counters.errors += 1, // BadConfig
+                }
+            }
+            Step::Scan {
+                seq,
+                pose,
+                beams,
+                overflow,
+            } => {
+                if overflow > 0 {
+                    counters.beams_overflowed += overflow;
+                    counters.errors += 1;
+                }
+                let Some(m) = machine.as_mut() else {
+                    counters.errors += 1; // NoConfig
+                    return;
+                };
+                let Some(n) = updates(seq) else {
+                    missing = Some(seq);
+                    return;
+                };
+                let (report, ok) = m.scan(seq, &pose, beams, overflow, n);
+                if !ok {
+                    counters.errors += 1;
+                }
+                counters.scans += 1;
+                hook(ReplayEvent::Scan(seq, &report, m));
+                after = Some(seq);
+            }
+            Step::Finish => finish = true,
+            Step::Error(_) => counters.errors += 1,
+        });
+        if let Some(seq) = missing {
+            bail!("the firmware did not report scan {seq}");
+        }
+        counters.link = rx.counters();
+        if let (Some(seq), Some(m)) = (after, machine.as_ref()) {
+            hook(ReplayEvent::AfterScan(seq, &counters, m));
+        }
+        if finish {
+            break;
+        }
+    }
+    counters.link = rx.counters();
+    Ok((machine, counters))
+}
+
+/// Compares the firmware's stream with the replay.
+fn compare(input: &[u8], g: &Groups, c: &mut Checker) -> anyhow::Result<()> {
+    let hello = g.hello.as_ref().context("no Hello from the firmware")?;
+    ensure!(
+        (hello.width, hello.height, hello.tile_edge) == (fw::WIDTH, fw::HEIGHT, fw::TILE_EDGE)
+            && hello.max_beams as usize == fw::MAX_BEAMS
+            && hello.ray_capacity as usize == fw::RAYS
+            && hello.scan_capacity as usize == fw::SCANS
+            && hello.local_capacity as usize == fw::LOCAL_RAYS
+            && hello.count_max == 255,
+        "the firmware's sizes {hello:?} are not ogm_core::wire::firmware_sizes (rebuild it?)"
+    );
+    let edge = usize::from(fw::TILE_EDGE);
+    let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
+    let scratch = StreamedMap::new(w, h, edge);
+    let (machine, counters) = replay::<u8>(
+        input,
+        FIRMWARE_SIZES,
+        |seq| g.scans.get(&seq).map(|s| s.report.sampler_updates),
+        |ev| match ev {
+            ReplayEvent::Scan(seq, report, m) => {
+                let Some(fwg) = g.scans.get(&seq) else {
+                    c.fail(format!("scan {seq}: no report from the firmware"));
+                    return;
+                };
+                let mut fr = fwg.report;
+                // Timing is the firmware's own business.
+                (fr.insert_ticks, fr.store_ticks, fr.sampler_ticks) = (0, 0, 0);
+                c.eq(|| format!("scan {seq} report"), &fr, report);
+                for t in &fwg.tiles {
+                    match m.tile(&scratch, t.layer, t.tx, t.ty) {
+                        Ok(mine) => {
+                            c.checks += 1;
+                            if t.data != mine {
+                                let n = t.data.iter().zip(&mine).filter(|(a, b)| a != b).count()
+                                    + t.data.len().abs_diff(mine.len());
+                                c.fail(format!(
+                                    "scan {seq}: tile {:?} ({}, {}) differs in {n} of {} bytes",
+                                    t.layer,
+                                    t.tx,
+                                    t.ty,
+                                    mine.len()
+                                ));
+                            }
+                        }
+                        Err(e) => c.fail(format!("scan {seq}: bad tile: {e}")),
+                    }
+                }
+            }
+            ReplayEvent::AfterScan(seq, counters, m) => {
+                let Some(fwg) = g.scans.get(&seq) else { return };
+                c.eq(
+                    || format!("scan {seq} sampler report"),
+                    &fwg.sampler,
+                    &Some(m.sampler_report()),
+                );
+                c.eq(
+                    || format!("scan {seq} counters"),
+                    &fwg.counters,
+                    &Some(*counters),
+                );
+            }
+        },
+    )?;
+    let m = machine.context("the replay never got a valid Config")?;
+    c.eq(|| "configured".into(), &g.configured, &Some(*m.config()));
+    c.eq(
+        || "scans".into(),
+        &g.scans.len(),
+        &(counters.scans as usize),
+    );
+    c.eq(
+        || "final sampler report".into(),
+        &g.final_sampler,
+        &Some(m.sampler_report()),
+    );
+    c.eq(
+        || "final counters".into(),
+        &g.final_counters,
+        &Some(counters),
+    );
+    // The map as streamed, cell for cell.
+    let mut streamed = StreamedMap::new(w, h, edge);
+    for t in &g.all_tiles {
+        streamed.apply(t)?;
+    }
+    let host_lo: Vec<i16> = m.mapper.grid().cells().iter().map(|l| l.raw()).collect();
+    let host_counts: Vec<u8> = (0..w * h).map(|i| m.gibbs.count(i) as u8).collect();
+    let host_sample: Vec<bool> = (0..w * h).map(|i| m.gibbs.occupied(i)).collect();
+    for (name, diff) in [
+        ("log-odds", first_diff(&streamed.log_odds, &host_lo)),
+        (
+            "marginal counts",
+            first_diff(&streamed.counts, &host_counts),
+        ),
+        ("sample", first_diff(&streamed.sample, &host_sample)),
+    ] {
+        c.checks += (w * h) as u64;
+        if let Some((i, n, a, b)) = diff {
+            c.fail(format!(
+                "streamed {name}: {n} cells differ, first at ({}, {}): firmware {a}, host {b}",
+                i % w,
+                i / w
+            ));
+        }
+    }
+    let done = g.done.as_ref().context("no Done from the firmware")?;
+    c.eq(
+        || "Done grid FNV".into(),
+        &done.grid_fnv,
+        &ogm_core::wire::grid_fnv(m.mapper.grid().cells()),
+    );
+    Ok(())
+}
+
+fn first_diff<T: PartialEq + std::fmt::Display>(
+    a: &[T],
+    b: &[T],
+) -> Option<(usize, usize, String, String)> {
+    let n = a.iter().zip(b).filter(|(x, y)| x != y).count() + a.len().abs_diff(b.len());
+    let i = a.iter().zip(b).position(|(x, y)| x != y)?;
+    Some((i, n, a[i].to_string(), b[i].to_string()))
+}
+
+/// The figures from the firmware's reports.
+fn figures(g: &Groups, hello: &HelloInfo) -> Figures {
+    let ns_per_tick = 1e9 / f64::from(hello.tick_hz.max(1));
+    let mut f = Figures::default();
+    let (mut beams, mut cells, mut insert, mut store, mut sampler, mut updates) =
+        (0u64, 0u64, 0u64, 0u64, 0u64, 0u64);
+    for s in g.scans.values() {
+        let r = &s.report;
+        f.scans += 1;
+        beams += u64::from(r.beams);
+        cells += u64::from(r.cells_hit + r.cells_freed);
+        insert += u64::from(r.insert_ticks);
+        store += u64::from(r.store_ticks);
+        sampler += u64::from(r.sampler_ticks);
+        updates += u64::from(r.sampler_updates);
+        f.insert_per_scan_max = f
+            .insert_per_scan_max
+            .max((f64::from(r.insert_ticks) * ns_per_tick) as u64);
+    }
+    let n = f64::from(f.scans.max(1));
+    f.beams_per_scan = beams as f64 / n;
+    f.cells_per_scan = cells as f64 / n;
+    f.insert_per_scan = insert as f64 * ns_per_tick / n;
+    f.insert_per_cell = insert as f64 * ns_per_tick / cells.max(1) as f64;
+    f.store_per_scan = store as f64 * ns_per_tick / n;
+    f.sampler_updates = updates;
+    f.updates_per_scan = updates as f64 / n;
+    f.per_patch = sampler as f64 * ns_per_tick / updates.max(1) as f64;
+    if let Some(d) = &g.done {
+        (f.stack_used, f.stack_size) = (d.stack_used, d.stack_size);
+    }
+    f
+}
+
+/// The repository root (host-sim's parent directory).
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from("."))
+}
+
+/// Why the firmware cannot run here, if it cannot: `firmware/target/toolchain.env` (written by
+/// `scripts/firmware-toolchain.sh`) and the QEMU it names must exist.
+pub fn toolchain_missing() -> Option<String> {
+    let env = repo_root().join("firmware/target/toolchain.env");
+    let Ok(text) = std::fs::read_to_string(&env) else {
+        return Some(format!(
+            "{} not found: run `bash scripts/firmware-toolchain.sh` first",
+            env.display()
+        ));
+    };
+    let qemu = text
+        .lines()
+        .find_map(|l| l.strip_prefix("FW_QEMU="))
+        .unwrap_or("");
+    if qemu.is_empty() || !Path::new(qemu).exists() {
+        return Some(format!(
+            "QEMU ({}) from {} does not exist: rerun `bash scripts/firmware-toolchain.sh`",
+            if qemu.is_empty() { "unset" } else { qemu },
+            env.display()
+        ));
+    }
+    None
+}
+
+/// Builds the firmware with `scripts/firmware.sh build`; returns the ELF.
+pub fn build_elf(log: &Path) -> anyhow::Result<PathBuf> {
+    let root = repo_root();
+    let log_file =
+        std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
+    let out = Command::new("bash")
+        .arg(root.join("scripts/firmware.sh"))
+        .arg("build")
+        .stdin(Stdio::null())
+        .stderr(Stdio::from(log_file))
+        .output()
+        .context("running scripts/firmware.sh build")?;
+    if !out.status.success() {
+        bail!(
+            "scripts/firmware.sh build failed ({}):\n{}",
+            out.status,
+            tail(log, 30)
+        );
+    }
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let elf = stdout
+        .lines()
+        .last()
+        .map(|l| PathBuf::from(l.trim()))
+        .context("scripts/firmware.sh build printed no ELF path")?;
+    ensure!(elf.exists(), "ELF {} does not exist", elf.display());
+    Ok(elf)
+}
+
+fn tail(path: &Path, lines: usize) -> String {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let v: Vec<&str> = text.lines().collect();
+    v[v.len().saturating_sub(lines)..].join("\n")
+}
+
+/// Boots `elf` in QEMU with UART1 on a Unix socket, sends `input`, returns the stream bytes.
+fn run_qemu(
+    elf: &Path,
+    input: &[u8],
+    timeout: Duration,
+    log: Option<&Path>,
+) -> anyhow::Result<(Vec<u8>, Option<ExitStatus>, f64)> {
+    let root = repo_root();
+    let dir = std::env::temp_dir().join(format!("ogm-fw-{}-{}", std::process::id(), rand_seed()));
+    std::fs::create_dir_all(&dir)?;
+    let sock = dir.join("u1.sock");
+    let listener =
+        UnixListener::bind(&sock).with_context(|| format!("binding {}", sock.display()))?;
+    listener.set_nonblocking(true)?;
+    let mut cmd = Command::new("bash");
+    cmd.arg(root.join("scripts/firmware.sh"))
+        .arg("qemu")
+        .arg(elf)
+        .args(["--timeout", &timeout.as_secs().max(1).to_string()])
+        .args(["--uart1", "chardev:u1", "--", "-chardev"])
+        .arg(format!("socket,id=u1,path={}", sock.display()))
+        .stdin(Stdio::null());
+    if let Some(log) = log {
+        let f =
+            std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
+        cmd.stdout(Stdio::from(f.try_clone()?))
+            .stderr(Stdio::from(f));
+    }
+    let t0 = Instant::now();
+    let mut child = cmd.spawn().context("starting scripts/firmware.sh qemu")?;
+    let log_tail = || log.map(|l| tail(l, 40)).unwrap_or_default();
+    let stream = loop {
+        match listener.accept() {
+            Ok((s, _)) => break s,
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                if let Some(st) = child.try_wait()? {
+                    let _ = std::fs::remove_dir_all(&dir);
+                    bail!(
+                        "QEMU exited ({st}) before connecting to the link:\n{}",
+                        log_tail()
+                    );
+                }
+                if t0.elapsed() > Duration::from_secs(60) {
+                    let _ = child.kill();
+                    let _ = std::fs::remove_dir_all(&dir);
+                    bail!("QEMU did not connect to {} within 60 s", sock.display());
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            Err(e) => return Err(e.into()),
+        }
+    };
+    stream.set_nonblocking(false)?;
+    let mut writer = stream.try_clone()?;
+    let data = input.to_vec();
+    let writer = std::thread::spawn(move || writer.write_all(&data));
+    let mut reader = stream;
+    reader.set_read_timeout(Some(Duration::from_millis(200)))?;
+    let mut out = Vec::new();
+    let mut buf = [0u8; 16 * 1024];
+    let deadline = t0 + timeout + Duration::from_secs(10);
+    let mut status = None;
+    loop {
+        match reader.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => out.extend_from_slice(&buf[..n]),
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                if let Some(st) = child.try_wait()? {
+                    status = Some(st);
+                    // Drain what is left.
+                    reader.set_nonblocking(true)?;
+                    while let Ok(n) = reader.read(&mut buf) {
+                        if n == 0 {
+                            break;
+                        }
+                        out.extend_from_slice(&buf[..n]);
+                    }
+                    break;
+                }
+                if Instant::now() > deadline {
+                    let _ = child.kill();
+                    break;
+                }
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => break,
+            Err(e) => return Err(e.into()),
+        }
+    }
+    if status.is_none() {
+        let wait_until = Instant::now() + Duration::from_secs(15);
+        loop {
+            if let Some(st) = child.try_wait()? {
+                status = Some(st);
+                break;
+            }
+            if Instant::now() > wait_until {
+                let _ = child.kill();
+                status = child.wait().ok();
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+    let secs = t0.elapsed().as_secs_f64();
+    let _ = writer.join();
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok((out, status, secs))
+}
+
+fn rand_seed() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+/// The world of a run: `--map` (5 cm, cropped to the firmware grid) or a generated building.
+pub fn firmware_world(args: &FirmwareArgs) -> anyhow::Result<World> {
+    let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
+    Ok(match &args.map {
+        Some(p) => load_world(p, None)
+            .with_context(|| format!("loading {}", p.display()))?
+            .resample(crate::eval::EVAL_RESOLUTION_M)
+            .crop(0, 0, w, h),
+        None => generate(
+            &GenParams {
+                width: w,
+                height: h,
+                ..GenParams::default()
+            },
+            args.seed,
+        ),
+    })
+}
+
+/// The settings sent to the robot for `world`.
+pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunConfig {
+    let budget = match args.fixed_updates {
+        Some(updates) => Budget::Fixed { updates },
+        None => Budget::Time {
+            period_us: args.period_us,
+            max_updates: args.max_updates,
+        },
+    };
+    let origin = (
+        (world.origin_m.0 * 1000.0).round() as i32,
+        (world.origin_m.1 * 1000.0).round() as i32,
+    );
+    RunConfig {
+        cell_mm: (world.resolution_m * 1000.0).round() as u32,
+        // Online, the map keeps changing under the sampler; a short burn-in lets the marginals
+        // start within the first few scans (a sweep is 7282 patch updates on 256 × 256).
+        burn_in_sweeps: 2,
+        tiles_per_scan: args.tiles_per_scan,
+        count_tiles_per_scan: args.count_tiles_per_scan,
+        ..RunConfig::paper(origin, max_range_mm, args.seed, budget)
+    }
+}
+
+/// Runs `host-sim firmware` (see the module docs).
+pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
+    let root = repo_root();
+    let qemu_dir = root.join("firmware/target/qemu");
+    std::fs::create_dir_all(&qemu_dir)?;
+    let world = firmware_world(args)?;
+    ensure!(
+        world.width <= usize::from(fw::WIDTH) && world.height <= usize::from(fw::HEIGHT),
+        "world is {}x{} cells, the firmware's grid {}x{}",
+        world.width,
+        world.height,
+        fw::WIDTH,
+        fw::HEIGHT
+    );
+    let sim = simulate(&world, &SimConfig::default(), args.seed)?;
+    let mut scans = sim.scans.clone();
+    if let Some(n) = args.max_scans {
+        scans.truncate(n);
+    }
+    let config = run_config(&world, args, sim.mapper_config.max_range_mm);
+    let input = encode_run(&config, &scans, args.garbage)?;
+    let mut report = FirmwareReport {
+        config: Some(config),
+        scans_sent: input.scans,
+        input_bytes: input.bytes.len(),
+        garbage_bytes: input.garbage_bytes,
+        ..FirmwareReport::default()
+    };
+    let mut updates_used: Vec<u32> = Vec::new();
+    if !args.host_only {
+        let elf = match &args.elf {
+            Some(e) => e.clone(),
+            None => build_elf(&qemu_dir.join("host-sim-build.log"))?,
+        };
+        let log = (!args.verbose).then(|| qemu_dir.join("host-sim-firmware.log"));
+        let (stream, status, secs) = run_qemu(
+            &elf,
+            &input.bytes,
+            Duration::from_secs(args.timeout),
+            log.as_deref(),
+        )?;
+        report.log = log.clone();
+        report.qemu_seconds = secs;
+        report.exit_code = status.and_then(|s| s.code());
+        if let Some(out) = &args.out {
+            std::fs::create_dir_all(out)?;
+            std::fs::write(out.join("stream.bin"), &stream)?;
+            std::fs::write(out.join("input.bin"), &input.bytes)?;
+        }
+        let mut dec = StreamDecoder::new();
+        let events: Vec<DeviceEvent> = dec
+            .push(&stream)
+            .into_iter()
+            .filter_map(Result::ok)
+            .collect();
+        let ds = dec.stats();
+        (
+            report.stream_bytes,
+            report.stream_frames,
+            report.stream_bad_frames,
+        ) = (ds.bytes, ds.frames, ds.bad_frames);
+        let groups = Groups::of(&events);
+        report.hello = groups.hello.clone();
+        report.tiles = groups.all_tiles.len() as u64;
+        report.device_errors = groups.errors;
+        report.counters = groups.final_counters;
+        report.sampler = groups.final_sampler;
+        report.done = groups.done;
+        let mut checker = Checker::default();
+        if report.exit_code != Some(0) {
+            checker.fail(format!(
+                "firmware exit status {:?} (log: {})",
+                report.exit_code,
+                log.as_ref()
+                    .map_or("stdout".into(), |l| l.display().to_string())
+            ));
+        }
+        match compare(&input.bytes, &groups, &mut checker) {
+            Ok(()) => {}
+            Err(e) => checker.fail(format!("{e:#}")),
+        }
+        if let Some(h) = &groups.hello {
+            report.figures = figures(&groups, h);
+        }
+        report.mismatches = checker.mismatches;
+        report.checks = checker.checks;
+        let mut seqs: Vec<&u32> = groups.scans.keys().collect();
+        seqs.sort();
+        updates_used = seqs
+            .iter()
+            .map(|s| groups.scans[s].report.sampler_updates)
+            .collect();
+    }
+    if args.accuracy {
+        if args.host_only {
+            let n = args
+                .fixed_updates
+                .context("--host-only needs --fixed-updates (no firmware to report counts)")?;
+            updates_used = vec![n; scans.len()];
+        }
+        report.accuracy = Some(accuracy(
+            &world,
+            &sim.observed,
+            &input.bytes,
+            &updates_used,
+            &scans,
+        )?);
+    }
+    if let Some(out) = &args.out {
+        std::fs::create_dir_all(out)?;
+        let json = serde_json::to_string_pretty(&report)?;
+        std::fs::write(out.join("report.json"), json + "\n")?;
+    }
+    Ok(report)
+}
+
+/// The firmware's bounds against the unbounded host configuration on the same input, seed
+/// and update counts, scored against ground truth.
+fn accuracy(
+    world: &World,
+    observed: &[bool],
+    input: &[u8],
+    updates: &[u32],
+    scans: &[crate::explore::ScanRecord],
+) -> anyhow::Result<Accuracy> {
+    let get = |seq: u32| updates.get(seq as usize).copied();
+    let (bounded, _) = replay::<u8>(input, FIRMWARE_SIZES, get, |_| {})?;
+    let total_rays: usize = scans.iter().map(|s| s.beams.len()).sum();
+    let unbounded_sizes = Sizes {
+        rays: total_rays.max(1),
+        scans: scans.len().max(1),
+        local: total_rays.clamp(1, 1 << 16),
+    };
+    let (unbounded, _) = replay::<u32>(input, unbounded_sizes, get, |_| {})?;
+    let bounded = bounded.context("no Config in the input")?;
+    let unbounded = unbounded.context("no Config in the input")?;
+    let (gw, ww, wh) = (usize::from(fw::WIDTH), world.width, world.height);
+    let crop = |v: Vec<f64>| -> Vec<f64> {
+        (0..wh)
+            .flat_map(|y| (0..ww).map(move |x| (x, y)))
+            .map(|(x, y)| v[y * gw + x])
+            .collect()
+    };
+    let mut maps = MethodMaps::new();
+    maps.insert(
+        "traditional".into(),
+        crop(
+            bounded
+                .mapper
+                .grid()
+                .cells()
+                .iter()
+                .map(|l| l.probability())
+                .collect(),
+        ),
+    );
+    maps.insert("gibbs_l9_border_firmware".into(), crop(bounded.marginals()));
+    maps.insert(
+        "gibbs_l9_border_unbounded".into(),
+        crop(unbounded.marginals()),
+    );
+    let (methods, near) = evaluate_methods(world, &[(maps, observed.to_vec())])?;
+    Ok(Accuracy {
+        methods,
+        methods_near_mapped: near,
+        bounded: bounded.sampler_report(),
+        unbounded: unbounded.sampler_report(),
+        updates: updates.to_vec(),
+    })
+}
+
+/// Prints a report.
+pub fn print_report(r: &FirmwareReport) {
+    if let Some(h) = &r.hello {
+        println!(
+            "firmware: {} on {}; grid {}x{}, {} rays, {} scans, {} local rays, {} beams/scan",
+            h.firmware,
+            h.board,
+            h.width,
+            h.height,
+            h.ray_capacity,
+            h.scan_capacity,
+            h.local_capacity,
+            h.max_beams
+        );
+    }
+    if r.exit_code.is_some() || r.stream_bytes > 0 {
+        println!(
+            "link: {} scans, {} bytes in ({} garbage); stream {} bytes, {} frames ({} bad), {} tiles, {} error reports; QEMU {:.1} s, exit {:?}",
+            r.scans_sent, r.input_bytes, r.garbage_bytes, r.stream_bytes, r.stream_frames,
+            r.stream_bad_frames, r.tiles, r.device_errors, r.qemu_seconds, r.exit_code
+        );
+    }
+    if let Some(c) = &r.counters {
+        println!("counters: {c:?}");
+    }
+    if let Some(s) = &r.sampler {
+        println!("sampler: {s:?}");
+    }
+    let f = &r.figures;
+    if f.scans > 0 {
+        println!(
+            "instructions (qemu -icount shift=0): per cell update {:.1}; per scan {:.0} (max {}, {:.0} beams, {:.0} cells); store+refresh {:.0}/scan; per sampled patch {:.0} ({} updates, {:.0}/scan); stack {} of {} B",
+            f.insert_per_cell, f.insert_per_scan, f.insert_per_scan_max, f.beams_per_scan,
+            f.cells_per_scan, f.store_per_scan, f.per_patch, f.sampler_updates,
+            f.updates_per_scan, f.stack_used, f.stack_size
+        );
+    }
+    if let Some(a) = &r.accuracy {
+        println!("accuracy (all cells / near mapped cells): max F1, max precision");
+        for (k, v) in &a.methods {
+            let n = &a.methods_near_mapped[k];
+            println!(
+                "  {k:<28} {:.4} {:.4} | {:.4} {:.4}",
+                v.max_f1, v.max_precision, n.max_f1, n.max_precision
+            );
+        }
+        println!(
+            "  local-list overflow: bounded {} / unbounded {}; store thinnings {} / {}",
+            a.bounded.local_overflow,
+            a.unbounded.local_overflow,
+            a.bounded.store.thinnings,
+            a.unbounded.store.thinnings
+        );
+    }
+    if r.exit_code.is_some() {
+        if r.identical() {
+            println!(
+                "IDENTICAL: the streamed map equals ogm-core on the host, cell for cell ({} checks)",
+                r.checks
+            );
+        } else {
+            println!("DIFFERENT ({} checks):", r.checks);
+            for m in &r.mismatches {
+                println!("  {m}");
+            }
+            if let Some(l) = &r.log {
+                println!("QEMU log: {}", l.display());
+            }
+        }
+    }
+}
+
+/// The CLI entry point.
+pub fn cli(args: &FirmwareArgs) -> anyhow::Result<()> {
+    if let Some(path) = &args.decode {
+        let events = crate::link::decode_file(path)?;
+        let g = Groups::of(&events);
+        if let Some(h) = &g.hello {
+            println!("{h:?}");
+            let f = figures(&g, h);
+            println!("{}", serde_json::to_string_pretty(&f)?);
+        }
+        println!(
+            "{} scans, {} tiles, {} errors, done: {:?}",
+            g.scans.len(),
+            g.all_tiles.len(),
+            g.errors,
+            g.done
+        );
+        return Ok(());
+    }
+    if !args.host_only {
+        if let Some(why) = toolchain_missing() {
+            bail!("{why}");
+        }
+    }
+    let r = run(args)?;
+    print_report(&r);
+    if !args.host_only && !r.identical() {
+        bail!("the firmware's map differs from the host's");
+    }
+    Ok(())
+}

@@ -1,0 +1,919 @@
+//! The link protocol: the messages between the robot and the host, and their framing.
+//! Schema and rationale: `docs/wire.md`.
+//!
+//! ## Framing
+//! Every message is one frame:
+//!
+//! ```text
+//! COBS( VERSION ‖ postcard(message) ‖ CRC-32(VERSION ‖ postcard(message)), little endian ) ‖ 0x00
+//! ```
+//!
+//! * postcard 1.x (varint integers, enum variants as varint indices); `VERSION` is one raw byte
+//!   first so a decoder can refuse a newer schema before decoding anything;
+//! * CRC-32 = CRC-32/ISO-HDLC (zlib, Ethernet), over the version byte and the payload;
+//! * COBS removes every `0x00`, so `0x00` only ever ends a frame; a receiver that starts
+//!   mid-stream or sees garbage skips to the next `0x00`.
+//!
+//! Device → host: frames back to back ([`DeviceMsg`]). Host → device: the same frames
+//! ([`HostMsg`]) *with an extra `0x00` in front*, interleaved with raw LD06 packets on the same
+//! UART; the leading zero is what tells the robot's demultiplexer ([`crate::link`]) that a frame
+//! and not a lidar packet (`0x54 …`) begins.
+//!
+//! ## Compatibility
+//! Only append enum variants and never change existing fields; anything else bumps
+//! [`VERSION`]. A frame with another version is counted and dropped, never misread.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::Result as CoreResult;
+use crate::forward_model::ForwardModel;
+use crate::geometry::{GridGeometry, Pose};
+use crate::gibbs::{SamplerConfig, SamplerStats};
+use crate::mapper::{MapperConfig, ScanStats};
+use crate::ray_store::StoreStats;
+use crate::{Angle, LogOdds};
+
+/// Schema version, the first byte of every frame.
+pub const VERSION: u8 = 1;
+
+/// CRC-32/ISO-HDLC (the zlib/Ethernet CRC-32), table driven (1 KiB of flash).
+pub static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// Longest host → device frame on the wire, both `0x00` delimiters included (a [`RunConfig`]
+/// with every field at its maximum is ~70 bytes; tested).
+pub const MAX_HOST_FRAME: usize = 112;
+
+/// Longest tile payload: 16 × 16 cells of `i16`.
+pub const MAX_TILE_BYTES: usize = 512;
+
+/// Longest device → host frame on the wire (a full log-odds tile; tested), plus the few bytes
+/// [`encode`] needs as working room.
+pub const MAX_DEVICE_FRAME: usize = MAX_TILE_BYTES + 32;
+
+/// The compile-time sizes of the reference firmware (`firmware/` allocates exactly these; the
+/// host's replay and accuracy runs use them too, and [`Hello`] reports them at run time).
+/// Justification: `docs/firmware.md` ("RAM layout").
+pub mod firmware_sizes {
+    /// Grid columns (256 × 5 cm = 12.8 m).
+    pub const WIDTH: u16 = 256;
+    /// Grid rows.
+    pub const HEIGHT: u16 = 256;
+    /// Cells.
+    pub const CELLS: usize = WIDTH as usize * HEIGHT as usize;
+    /// Edge of a streamed tile, cells (16 × 16 = 256 cells, 512 bytes of log-odds).
+    pub const TILE_EDGE: u16 = 16;
+    /// Beams per scan buffer (LD06: 4500 points/s at 10 Hz = 450 per turn = 38 packets).
+    pub const MAX_BEAMS: usize = 456;
+    /// Ray store: rays (6 bytes each).
+    pub const RAYS: usize = 2816;
+    /// Ray store: scans (20 bytes each).
+    pub const SCANS: usize = 128;
+    /// The sampler's per-tile ray list (`LocalRay`, 28 bytes each, plus its block bitsets).
+    pub const LOCAL_RAYS: usize = 224;
+}
+
+/// A pose on the wire.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct WirePose {
+    /// x, mm.
+    pub x_mm: i32,
+    /// y, mm.
+    pub y_mm: i32,
+    /// Heading, 1/65536 turn counter-clockwise (ogm-core's [`Angle`]).
+    pub heading: u16,
+}
+
+impl From<Pose> for WirePose {
+    fn from(p: Pose) -> Self {
+        WirePose {
+            x_mm: p.x_mm,
+            y_mm: p.y_mm,
+            heading: p.heading.0,
+        }
+    }
+}
+
+impl From<WirePose> for Pose {
+    fn from(p: WirePose) -> Self {
+        Pose {
+            x_mm: p.x_mm,
+            y_mm: p.y_mm,
+            heading: Angle(p.heading),
+        }
+    }
+}
+
+/// How many sampler patch updates the robot runs after each scan.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Budget {
+    /// Exactly this many.
+    Fixed {
+        /// Patch updates per scan.
+        updates: u32,
+    },
+    /// As many as fit until `period_us` (board time) after the scan was complete, at most
+    /// `max_updates`; the count actually run is reported in [`ScanReport::sampler_updates`].
+    Time {
+        /// Scan period, µs of the board's timer.
+        period_us: u32,
+        /// Upper bound per scan.
+        max_updates: u32,
+    },
+}
+
+/// The run's settings, sent by the host before the first scan. The grid size and the buffer
+/// capacities are compile-time constants of the firmware ([`Hello`]); everything else is here.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RunConfig {
+    /// World x of the grid's lower-left corner, mm.
+    pub origin_x_mm: i32,
+    /// World y of the grid's lower-left corner, mm.
+    pub origin_y_mm: i32,
+    /// Cell edge, mm.
+    pub cell_mm: u32,
+    /// Sensor maximum range, mm (readings at or beyond it are "no return").
+    pub max_range_mm: u32,
+    /// Readings closer than this are dropped, mm.
+    pub min_range_mm: u32,
+    /// Sampler seed.
+    pub seed: u64,
+    /// Forward model σ, 1/1000 cells.
+    pub sigma_milli_cells: u32,
+    /// Forward model outlier weight, parts per million.
+    pub outlier_ppm: u32,
+    /// p_randPatch, parts per million.
+    pub p_rand_patch_ppm: u32,
+    /// Sweeps before marginals are counted.
+    pub burn_in_sweeps: u32,
+    /// Candidates per patch.
+    pub max_candidates: u8,
+    /// Sampler tiles are 2^this cells square.
+    pub sampler_tile_shift: u8,
+    /// Sweeps of a tile per visit.
+    pub visit_sweeps: u8,
+    /// Sampler work per scan.
+    pub budget: Budget,
+    /// Changed log-odds tiles streamed after each scan (the rest follow later).
+    pub tiles_per_scan: u16,
+    /// Marginal-count tiles streamed after each scan (round robin).
+    pub count_tiles_per_scan: u16,
+}
+
+impl RunConfig {
+    /// The paper's settings on a grid with its lower-left corner at `origin_mm`: 5 cm cells,
+    /// σ = 3 cells, 1 % outliers, p_randPatch = 0.001, border prior with 16 candidates, 16-cell
+    /// sampler tiles.
+    pub const fn paper(
+        origin_mm: (i32, i32),
+        max_range_mm: u32,
+        seed: u64,
+        budget: Budget,
+    ) -> Self {
+        RunConfig {
+            origin_x_mm: origin_mm.0,
+            origin_y_mm: origin_mm.1,
+            cell_mm: 50,
+            max_range_mm,
+            min_range_mm: 0,
+            seed,
+            sigma_milli_cells: 3000,
+            outlier_ppm: 10_000,
+            p_rand_patch_ppm: 1000,
+            burn_in_sweeps: 10,
+            max_candidates: 16,
+            sampler_tile_shift: 4,
+            visit_sweeps: 2,
+            budget,
+            tiles_per_scan: 8,
+            count_tiles_per_scan: 8,
+        }
+    }
+
+    /// The grid this config places a `width × height` map on.
+    pub fn geometry(&self, width: u16, height: u16) -> CoreResult<GridGeometry> {
+        GridGeometry::new(
+            width,
+            height,
+            self.cell_mm,
+            self.origin_x_mm,
+            self.origin_y_mm,
+        )
+    }
+
+    /// The mapper settings (Hähnel's ray model, default clamp).
+    pub fn mapper_config(&self) -> MapperConfig {
+        MapperConfig {
+            max_range_mm: self.max_range_mm,
+            min_range_mm: self.min_range_mm,
+            ..MapperConfig::new(self.max_range_mm)
+        }
+    }
+
+    /// The forward model (maximum range in cells = `max_range_mm / cell_mm`).
+    pub fn forward_model(&self) -> CoreResult<ForwardModel> {
+        ForwardModel::gaussian(
+            f64::from(self.sigma_milli_cells) / 1000.0,
+            f64::from(self.outlier_ppm) / 1e6,
+            f64::from(self.max_range_mm) / f64::from(self.cell_mm.max(1)),
+        )
+    }
+
+    /// The sampler settings.
+    pub fn sampler_config(&self) -> SamplerConfig {
+        SamplerConfig {
+            p_rand_patch: (f64::from(self.p_rand_patch_ppm) / 1e6) as f32,
+            burn_in_sweeps: self.burn_in_sweeps,
+            max_candidates: self.max_candidates,
+            init_threshold: LogOdds::ZERO,
+            tile_shift: self.sampler_tile_shift,
+            visit_sweeps: self.visit_sweeps,
+            seed: self.seed,
+        }
+    }
+}
+
+/// Host → device.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum HostMsg {
+    /// Settings; must come first, exactly once.
+    Config(RunConfig),
+    /// The LD06 points that follow, up to the matching [`HostMsg::ScanEnd`], are one scan taken
+    /// at `pose` (known-pose mapping).
+    ScanStart {
+        /// Scan number (the host counts from 0).
+        seq: u32,
+        /// Where the scan was taken.
+        pose: WirePose,
+    },
+    /// End of scan `seq`; the host sent `points` LD06 points (fewer arrived = some were lost).
+    ScanEnd {
+        /// Scan number.
+        seq: u32,
+        /// Points sent.
+        points: u32,
+    },
+    /// No more scans: stream the final map and stop.
+    Finish,
+}
+
+/// Which map a [`Tile`] carries.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Layer {
+    /// The online log-odds map: `i16` little endian per cell ([`LogOdds`] raw, ln 4 = 1024).
+    LogOdds,
+    /// The sampler's marginal counts: `u8` per cell; p(occupied) = count / [`SamplerReport::samples`].
+    Counts,
+    /// The sampler's current map sample: one bit per cell, LSB first.
+    Sample,
+}
+
+/// A square block of the map, row-major from its lower-left cell (row 0 = lowest y).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Tile<'a> {
+    /// Which map.
+    pub layer: Layer,
+    /// Tile column (cells `tx·edge ..`).
+    pub tx: u16,
+    /// Tile row.
+    pub ty: u16,
+    /// The cells (see [`Layer`]); tiles at the map's edge may be smaller than `edge²`.
+    pub data: &'a [u8],
+}
+
+/// Sent once at boot: what this firmware is and its compile-time sizes.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Hello<'a> {
+    /// Firmware name and version.
+    pub firmware: &'a str,
+    /// Board name.
+    pub board: &'a str,
+    /// Timer ticks per second (the unit of the `*_ticks` fields).
+    pub tick_hz: u32,
+    /// Grid columns.
+    pub width: u16,
+    /// Grid rows.
+    pub height: u16,
+    /// Edge of the streamed tiles, cells.
+    pub tile_edge: u16,
+    /// Beams per scan buffer.
+    pub max_beams: u32,
+    /// Ray store capacity, rays.
+    pub ray_capacity: u32,
+    /// Ray store capacity, scans.
+    pub scan_capacity: u32,
+    /// Sampler's per-tile ray list capacity.
+    pub local_capacity: u32,
+    /// Largest marginal count (255 for `u8` counters).
+    pub count_max: u32,
+}
+
+/// What the robot did with one scan. Followed by the tiles it streamed for it.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ScanReport {
+    /// Scan number.
+    pub seq: u32,
+    /// Pose used.
+    pub pose: WirePose,
+    /// Beams in the scan.
+    pub beams: u32,
+    /// Beams that did not fit the scan buffer.
+    pub beams_overflowed: u32,
+    /// Mapper: beams used.
+    pub beams_used: u32,
+    /// Mapper: beams dropped (closer than the minimum range).
+    pub beams_dropped: u32,
+    /// Mapper: cells given the occupied update.
+    pub cells_hit: u32,
+    /// Mapper: cells given the free update.
+    pub cells_freed: u32,
+    /// Rays the ray store kept from this scan.
+    pub rays_stored: u32,
+    /// Sampler patch updates run after this scan (the host replays exactly this many).
+    pub sampler_updates: u32,
+    /// Timer ticks of the log-odds update.
+    pub insert_ticks: u32,
+    /// Timer ticks of adding the scan to the ray store and filling its rays' caches.
+    pub store_ticks: u32,
+    /// Timer ticks of the sampler updates.
+    pub sampler_ticks: u32,
+}
+
+impl ScanReport {
+    /// Copies the mapper's statistics in.
+    pub fn set_scan_stats(&mut self, s: &ScanStats) {
+        self.beams_used = s.beams_used;
+        self.beams_dropped = s.beams_dropped;
+        self.cells_hit = s.cells_hit;
+        self.cells_freed = s.cells_freed;
+    }
+}
+
+/// The ray store's state.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StoreReport {
+    /// Scans accepted.
+    pub scans_added: u32,
+    /// Rays accepted.
+    pub rays_added: u32,
+    /// Beams not stored because of decimation.
+    pub rays_decimated: u32,
+    /// Rays removed later by thinning.
+    pub rays_thinned: u32,
+    /// Beams dropped as invalid.
+    pub rays_invalid: u32,
+    /// Times the store halved its rays or scans.
+    pub thinnings: u32,
+    /// Current decimation (1 = every beam).
+    pub decimation: u32,
+    /// Scans held now.
+    pub scans: u32,
+    /// Rays held now.
+    pub rays: u32,
+}
+
+impl StoreReport {
+    /// From the store's counters and fill.
+    pub fn new(s: &StoreStats, decimation: u32, scans: usize, rays: usize) -> Self {
+        StoreReport {
+            scans_added: s.scans_added,
+            rays_added: s.rays_added,
+            rays_decimated: s.rays_decimated,
+            rays_thinned: s.rays_thinned,
+            rays_invalid: s.rays_invalid,
+            thinnings: s.thinnings,
+            decimation,
+            scans: scans as u32,
+            rays: rays as u32,
+        }
+    }
+}
+
+/// Sampler statistics.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SamplerReport {
+    /// Patch updates done.
+    pub updates: u64,
+    /// Of which random configurations.
+    pub random_patches: u64,
+    /// Updates with a single candidate.
+    pub single_candidate: u64,
+    /// Updates that changed the patch.
+    pub changed: u64,
+    /// Ray × patch likelihood evaluations.
+    pub rays_evaluated: u64,
+    /// Tile visits started.
+    pub tile_visits: u64,
+    /// Rays that did not fit the per-tile list.
+    pub local_overflow: u64,
+    /// Completed sweeps.
+    pub sweeps: u32,
+    /// Samples in the marginal counts.
+    pub samples: u32,
+    /// The ray store.
+    pub store: StoreReport,
+}
+
+impl SamplerReport {
+    /// From the sampler's counters.
+    pub fn new(s: &SamplerStats, samples: u32, store: StoreReport) -> Self {
+        SamplerReport {
+            updates: s.updates,
+            random_patches: s.random_patches,
+            single_candidate: s.single_candidate,
+            changed: s.changed,
+            rays_evaluated: s.rays_evaluated,
+            tile_visits: s.tile_visits,
+            local_overflow: s.local_overflow,
+            sweeps: s.sweeps,
+            samples,
+            store,
+        }
+    }
+}
+
+/// What the receive side saw (see [`crate::link`]).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LinkCounters {
+    /// Bytes received.
+    pub rx_bytes: u32,
+    /// Bytes skipped (neither a packet nor a frame).
+    pub garbage_bytes: u32,
+    /// Good LD06 packets.
+    pub ld06_packets: u32,
+    /// LD06 packets with a CRC mismatch.
+    pub ld06_crc_errors: u32,
+    /// `0x54` not followed by `0x2C`.
+    pub ld06_bad_headers: u32,
+    /// LD06 packets cut short.
+    pub ld06_truncated: u32,
+    /// Good host frames.
+    pub frames: u32,
+    /// Frames that failed COBS, CRC or postcard decoding.
+    pub frame_errors: u32,
+    /// Frames with another schema version.
+    pub frames_bad_version: u32,
+    /// Frames longer than [`MAX_HOST_FRAME`].
+    pub frames_too_long: u32,
+    /// LD06 points received outside a scan (no `ScanStart`).
+    pub points_outside_scan: u32,
+    /// Points announced by `ScanEnd` that did not arrive.
+    pub points_lost: u32,
+    /// `ScanEnd` without a matching `ScanStart`, or a scan never ended.
+    pub scan_seq_errors: u32,
+}
+
+/// Counters of the whole device.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Counters {
+    /// Receive side.
+    pub link: LinkCounters,
+    /// Scans processed.
+    pub scans: u32,
+    /// Beams dropped for lack of scan buffer space.
+    pub beams_overflowed: u32,
+    /// UART receive errors (overruns).
+    pub uart_errors: u32,
+    /// Error messages sent.
+    pub errors: u32,
+}
+
+/// Error kinds.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ErrorCode {
+    /// A scan or `Finish` before `Config`.
+    NoConfig,
+    /// A second `Config`.
+    ConfigTwice,
+    /// `Config` rejected (`detail`: 0 geometry, 1 mapper, 2 forward model, 3 store, 4 sampler,
+    /// 5 no room for the state).
+    BadConfig,
+    /// The mapper rejected a scan.
+    Map,
+    /// Scan framing broken (`detail`: the `ScanEnd` sequence number that did not match).
+    ScanSequence,
+    /// Points lost in a scan (`detail`: how many).
+    PointsLost,
+    /// A scan had more beams than the buffer (`detail`: how many were dropped).
+    ScanOverflow,
+    /// The UART reported an error (overrun).
+    Uart,
+    /// A bad LD06 packet or host frame (`detail`: 0 LD06 CRC, 1 truncated, 2 bad header,
+    /// 3 frame, 4 frame too long).
+    Link,
+}
+
+/// An error report.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DeviceError {
+    /// What.
+    pub code: ErrorCode,
+    /// The scan it concerns (the last one started).
+    pub seq: u32,
+    /// Code-specific detail.
+    pub detail: u32,
+}
+
+/// The last message of a run.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Done {
+    /// Scans processed.
+    pub scans: u32,
+    /// FNV-1a (32-bit) over every log-odds cell, `i16` LE, row-major.
+    pub grid_fnv: u32,
+    /// FNV-1a over every marginal count byte, row-major.
+    pub counts_fnv: u32,
+    /// Stack high-water mark, bytes.
+    pub stack_used: u32,
+    /// Stack size, bytes.
+    pub stack_size: u32,
+}
+
+/// Device → host.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DeviceMsg<'a> {
+    /// At boot.
+    #[serde(borrow)]
+    Hello(Hello<'a>),
+    /// `Config` accepted (echo).
+    Configured(RunConfig),
+    /// One scan done.
+    Scan(ScanReport),
+    /// Map data.
+    #[serde(borrow)]
+    Tile(Tile<'a>),
+    /// Sampler and ray store statistics (after every scan and at the end).
+    Sampler(SamplerReport),
+    /// Counters (after every scan and at the end).
+    Counters(Counters),
+    /// Something went wrong (the run goes on).
+    Error(DeviceError),
+    /// Final message.
+    Done(Done),
+}
+
+/// Framing errors.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum WireError {
+    /// The output buffer is too small.
+    BufferFull,
+    /// Not valid COBS (a zero inside, or a length byte pointing past the end).
+    Cobs,
+    /// Too short to hold a version byte and a CRC.
+    TooShort,
+    /// CRC mismatch.
+    Crc,
+    /// Another schema version (the byte found).
+    Version(u8),
+    /// postcard could not decode the payload, or bytes were left over.
+    Decode,
+}
+
+impl core::fmt::Display for WireError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            WireError::BufferFull => f.write_str("frame buffer too small"),
+            WireError::Cobs => f.write_str("bad COBS encoding"),
+            WireError::TooShort => f.write_str("frame too short"),
+            WireError::Crc => f.write_str("CRC-32 mismatch"),
+            WireError::Version(v) => write!(f, "schema version {v}, expected {VERSION}"),
+            WireError::Decode => f.write_str("postcard decoding failed"),
+        }
+    }
+}
+
+/// Encodes `msg` as one frame (COBS, terminating `0x00` included) into `buf`; returns the bytes.
+///
+/// One buffer, three passes, no per-byte generic code (small in flash): postcard writes the
+/// payload behind a gap at the front of `buf`, the CRC-32 is appended, and COBS then encodes
+/// forwards into the front of the same buffer (the gap, ⌈len/254⌉ + 1 bytes, is what COBS adds,
+/// so the writer never overtakes the reader).
+pub fn encode<'b, T: Serialize + ?Sized>(
+    msg: &T,
+    buf: &'b mut [u8],
+) -> Result<&'b mut [u8], WireError> {
+    let gap = buf.len() / 254 + 2;
+    let body = buf.get_mut(gap..).ok_or(WireError::BufferFull)?;
+    let (version, rest) = body.split_first_mut().ok_or(WireError::BufferFull)?;
+    *version = VERSION;
+    let n = 1 + postcard::to_slice(msg, rest)
+        .map_err(|_| WireError::BufferFull)?
+        .len();
+    let crc = CRC32.checksum(body.get(..n).ok_or(WireError::BufferFull)?);
+    body.get_mut(n..n + 4)
+        .ok_or(WireError::BufferFull)?
+        .copy_from_slice(&crc.to_le_bytes());
+    let len = cobs_encode_in_place(buf, gap, n + 4);
+    let end = buf.get_mut(len).ok_or(WireError::BufferFull)?;
+    *end = 0;
+    buf.get_mut(..=len).ok_or(WireError::BufferFull)
+}
+
+/// COBS-encodes `buf[src..src + len]` into `buf[0..]` (no terminator); returns the encoded
+/// length. Needs `src ≥ 1 + len / 254` (then every write lands on an already-read byte).
+fn cobs_encode_in_place(buf: &mut [u8], src: usize, len: usize) -> usize {
+    let (mut code_at, mut w, mut code) = (0usize, 1usize, 1u8);
+    for i in src..src + len {
+        let b = buf.get(i).copied().unwrap_or(0);
+        if b != 0 {
+            if let Some(slot) = buf.get_mut(w) {
+                *slot = b;
+            }
+            w += 1;
+            code += 1;
+        }
+        if b == 0 || code == 0xFF {
+            if let Some(slot) = buf.get_mut(code_at) {
+                *slot = code;
+            }
+            (code_at, w, code) = (w, w + 1, 1);
+        }
+    }
+    if let Some(slot) = buf.get_mut(code_at) {
+        *slot = code;
+    }
+    w
+}
+
+/// Decodes COBS in place (`buf` without the terminating `0x00`); returns the decoded length.
+pub fn cobs_decode_in_place(buf: &mut [u8]) -> Result<usize, WireError> {
+    let (mut read, mut write) = (0usize, 0usize);
+    let len = buf.len();
+    while read < len {
+        let code = buf.get(read).copied().unwrap_or(0);
+        if code == 0 {
+            return Err(WireError::Cobs);
+        }
+        read += 1;
+        for _ in 1..code {
+            let b = buf.get(read).copied().ok_or(WireError::Cobs)?;
+            if b == 0 {
+                return Err(WireError::Cobs);
+            }
+            if let Some(slot) = buf.get_mut(write) {
+                *slot = b;
+            }
+            write += 1;
+            read += 1;
+        }
+        if code != 0xFF && read < len {
+            if let Some(slot) = buf.get_mut(write) {
+                *slot = 0;
+            }
+            write += 1;
+        }
+    }
+    Ok(write)
+}
+
+/// Decodes one frame: `frame` is the COBS bytes *without* the terminating `0x00` (decoded in
+/// place); checks the CRC and the version and decodes a `T` that may borrow from `frame`.
+pub fn decode<'a, T: Deserialize<'a>>(frame: &'a mut [u8]) -> Result<T, WireError> {
+    let n = cobs_decode_in_place(frame)?;
+    let frame: &'a [u8] = frame;
+    let raw = frame.get(..n).ok_or(WireError::TooShort)?;
+    if raw.len() < 5 {
+        return Err(WireError::TooShort);
+    }
+    let (body, crc) = raw.split_at(raw.len() - 4);
+    let want = u32::from_le_bytes(crc.try_into().map_err(|_| WireError::TooShort)?);
+    if CRC32.checksum(body) != want {
+        return Err(WireError::Crc);
+    }
+    let (&version, payload) = body.split_first().ok_or(WireError::TooShort)?;
+    if version != VERSION {
+        return Err(WireError::Version(version));
+    }
+    match postcard::take_from_bytes(payload) {
+        Ok((msg, [])) => Ok(msg),
+        _ => Err(WireError::Decode),
+    }
+}
+
+/// FNV-1a (32-bit) over `bytes`, continuing from `h` (start with [`FNV_START`]).
+pub fn fnv1a(h: u32, bytes: &[u8]) -> u32 {
+    bytes
+        .iter()
+        .fold(h, |h, &b| (h ^ u32::from(b)).wrapping_mul(0x0100_0193))
+}
+
+/// FNV-1a's offset basis.
+pub const FNV_START: u32 = 0x811c_9dc5;
+
+/// [`fnv1a`] over a log-odds map (`i16` LE, in order), as in [`Done::grid_fnv`].
+pub fn grid_fnv(cells: &[LogOdds]) -> u32 {
+    cells
+        .iter()
+        .fold(FNV_START, |h, c| fnv1a(h, &c.raw().to_le_bytes()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn max_config() -> RunConfig {
+        RunConfig {
+            origin_x_mm: i32::MIN,
+            origin_y_mm: i32::MIN,
+            cell_mm: u32::MAX,
+            max_range_mm: u32::MAX,
+            min_range_mm: u32::MAX,
+            seed: u64::MAX,
+            sigma_milli_cells: u32::MAX,
+            outlier_ppm: u32::MAX,
+            p_rand_patch_ppm: u32::MAX,
+            burn_in_sweeps: u32::MAX,
+            max_candidates: u8::MAX,
+            sampler_tile_shift: u8::MAX,
+            visit_sweeps: u8::MAX,
+            budget: Budget::Time {
+                period_us: u32::MAX,
+                max_updates: u32::MAX,
+            },
+            tiles_per_scan: u16::MAX,
+            count_tiles_per_scan: u16::MAX,
+        }
+    }
+
+    #[test]
+    fn round_trip_and_sizes() {
+        let mut buf = [0u8; 256];
+        let msgs = [
+            HostMsg::Config(max_config()),
+            HostMsg::ScanStart {
+                seq: u32::MAX,
+                pose: WirePose {
+                    x_mm: i32::MIN,
+                    y_mm: i32::MAX,
+                    heading: u16::MAX,
+                },
+            },
+            HostMsg::ScanEnd {
+                seq: u32::MAX,
+                points: u32::MAX,
+            },
+            HostMsg::Finish,
+        ];
+        for m in msgs {
+            let n = encode(&m, &mut buf).unwrap().len();
+            // + the leading 0x00 the host adds
+            assert!(n < MAX_HOST_FRAME, "{m:?}: {n} bytes");
+            assert_eq!(buf[n - 1], 0);
+            assert!(!buf[..n - 1].contains(&0));
+            let back: HostMsg = decode(&mut buf[..n - 1]).unwrap();
+            assert_eq!(back, m);
+        }
+        let data = [0xA5u8; MAX_TILE_BYTES];
+        let t = DeviceMsg::Tile(Tile {
+            layer: Layer::LogOdds,
+            tx: u16::MAX,
+            ty: u16::MAX,
+            data: &data,
+        });
+        let mut big = [0u8; MAX_DEVICE_FRAME];
+        let n = encode(&t, &mut big).unwrap().len();
+        let back: DeviceMsg = decode(&mut big[..n - 1]).unwrap();
+        assert_eq!(back, t);
+    }
+
+    #[test]
+    fn rejects_corruption_and_other_versions() {
+        let mut buf = [0u8; 64];
+        let m = HostMsg::ScanEnd {
+            seq: 7,
+            points: 360,
+        };
+        let n = encode(&m, &mut buf).unwrap().len();
+        for i in 0..n - 1 {
+            for bit in 0..8 {
+                let mut f = buf;
+                f[i] ^= 1 << bit;
+                let r: Result<HostMsg, _> = decode(&mut f[..n - 1]);
+                assert!(r.is_err(), "flip {i}.{bit} undetected");
+            }
+        }
+        // A frame with version 2 (valid CRC) is refused by version.
+        let mut raw = std::vec![2u8];
+        raw.extend_from_slice(postcard::to_slice(&m, &mut [0u8; 64]).unwrap());
+        let crc = CRC32.checksum(&raw);
+        raw.extend_from_slice(&crc.to_le_bytes());
+        let mut enc = cobs_encode(&raw);
+        let r: Result<HostMsg, _> = decode(&mut enc);
+        assert_eq!(r, Err(WireError::Version(2)));
+        // Trailing bytes after the message are refused.
+        let mut raw = std::vec![VERSION];
+        raw.extend_from_slice(postcard::to_slice(&m, &mut [0u8; 64]).unwrap());
+        raw.push(0x11);
+        let crc = CRC32.checksum(&raw);
+        raw.extend_from_slice(&crc.to_le_bytes());
+        let mut enc = cobs_encode(&raw);
+        assert_eq!(decode::<HostMsg>(&mut enc), Err(WireError::Decode));
+        assert_eq!(decode::<HostMsg>(&mut []), Err(WireError::TooShort));
+    }
+
+    /// Plain reference COBS encoder (without terminator).
+    fn cobs_encode(data: &[u8]) -> Vec<u8> {
+        let mut out = vec![0u8];
+        let mut code_at = 0;
+        let mut code = 1u8;
+        for &b in data {
+            if b == 0 {
+                out[code_at] = code;
+                code_at = out.len();
+                out.push(0);
+                code = 1;
+            } else {
+                out.push(b);
+                code += 1;
+                if code == 0xFF {
+                    out[code_at] = code;
+                    code_at = out.len();
+                    out.push(0);
+                    code = 1;
+                }
+            }
+        }
+        out[code_at] = code;
+        out
+    }
+
+    #[test]
+    fn encode_matches_the_reference_cobs_at_block_boundaries() {
+        for len in [
+            0usize, 1, 200, 243, 244, 245, 246, 250, 253, 254, 255, 497, 498, 499, 500,
+        ] {
+            let data: Vec<u8> = (0..len).map(|i| (i % 7) as u8 * 40).collect();
+            let msg = DeviceMsg::Tile(Tile {
+                layer: Layer::Counts,
+                tx: 1,
+                ty: 2,
+                data: &data,
+            });
+            let mut buf = [0u8; MAX_DEVICE_FRAME];
+            let frame = encode(&msg, &mut buf).unwrap().to_vec();
+            let mut raw = vec![VERSION];
+            raw.extend_from_slice(postcard::to_slice(&msg, &mut [0u8; 600]).unwrap());
+            let crc = CRC32.checksum(&raw);
+            raw.extend_from_slice(&crc.to_le_bytes());
+            let mut want = cobs_encode(&raw);
+            want.push(0);
+            assert_eq!(frame, want, "len {len}");
+            let mut f = frame.clone();
+            let back: DeviceMsg = decode(&mut f[..frame.len() - 1]).unwrap();
+            assert_eq!(back, msg);
+        }
+    }
+
+    #[test]
+    fn cobs_matches_reference_on_edge_lengths() {
+        for len in [0usize, 1, 253, 254, 255, 256, 508, 509, 600] {
+            for zeros in [false, true] {
+                let data: Vec<u8> = (0..len)
+                    .map(|i| {
+                        if zeros && i % 97 == 3 {
+                            0
+                        } else {
+                            (i % 251 + 1) as u8
+                        }
+                    })
+                    .collect();
+                let mut enc = cobs_encode(&data);
+                assert!(!enc.contains(&0));
+                let n = cobs_decode_in_place(&mut enc).unwrap();
+                assert_eq!(&enc[..n], &data[..], "len {len} zeros {zeros}");
+            }
+        }
+        assert_eq!(cobs_decode_in_place(&mut [3, 1]), Err(WireError::Cobs));
+        assert_eq!(cobs_decode_in_place(&mut [2, 0]), Err(WireError::Cobs));
+    }
+
+    #[test]
+    fn config_builds_the_models() {
+        let c = RunConfig::paper((-6400, -6400), 3750, 7, Budget::Fixed { updates: 100 });
+        let g = c.geometry(256, 256).unwrap();
+        assert_eq!(g.origin_mm(), (-6400, -6400));
+        assert_eq!(c.mapper_config(), MapperConfig::new(3750));
+        assert_eq!(
+            c.forward_model().unwrap(),
+            ForwardModel::gaussian(3.0, 0.01, 75.0).unwrap()
+        );
+        assert_eq!(c.sampler_config().seed, 7);
+        assert_eq!(c.sampler_config().p_rand_patch, 0.001);
+    }
+}
