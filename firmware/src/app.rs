@@ -142,6 +142,7 @@ pub struct App {
     counters: Counters,
     seq: u32,
     totals: Totals,
+    stack_config: u32,
 }
 
 /// Encodes `msg` into `tx` and writes it to `link`; failures are logged and counted.
@@ -177,6 +178,7 @@ impl App {
             counters: Counters::default(),
             seq: 0,
             totals: Totals::default(),
+            stack_config: 0,
         }
     }
 
@@ -222,6 +224,10 @@ impl App {
             Ok(m) => {
                 info!("config: {}", config);
                 self.machine = Some(m);
+                // Building the sampler is the deepest the stack ever gets (copies of its 2 KiB
+                // forward-model tables); note it, then measure the mapping loop on its own.
+                self.stack_config = board::stack_usage().used;
+                board::repaint_stack();
                 self.send(link, &DeviceMsg::Configured(config));
             }
             Err(detail) => self.report_error(link, ErrorCode::BadConfig, detail),
@@ -435,6 +441,7 @@ impl App {
             scans: self.counters.scans,
             stack_used: stack.used,
             stack_size: stack.size,
+            stack_config: self.stack_config,
             ..Done::default()
         };
         if let Some(m) = self.machine.as_deref() {
@@ -456,6 +463,10 @@ impl App {
         info!(
             "done: {=u32} scans, {=u32} errors; grid fnv {=u32:08x}, counts fnv {=u32:08x}",
             done.scans, self.counters.errors, done.grid_fnv, done.counts_fnv
+        );
+        info!(
+            "stack: {=u32} B peak while building the sampler, {=u32} B in the mapping loop, of {=u32} B",
+            done.stack_config, done.stack_used, done.stack_size
         );
         // Under `qemu -icount shift=0` 1 ns = 1 instruction (docs/firmware.md).
         info!(

@@ -58,7 +58,7 @@ fn main() -> ! {
     let code = app::run(&mut board.link, &board.timer);
     let stack = board::stack_usage();
     info!(
-        "stack: {=u32} of {=u32} bytes used (high-water mark)",
+        "stack: {=u32} of {=u32} bytes used since the settings were applied (high-water mark)",
         stack.used, stack.size
     );
     info!("exit {=i32}", code);

@@ -32,8 +32,8 @@ static RAYS: StaticArray<StoredRay, { sz::RAYS }> = StaticArray::new();
 static SCANS: StaticArray<StoredScan, { sz::SCANS }> = StaticArray::new();
 /// The sampler's per-tile ray list: 24 B each.
 static LOCAL: StaticArray<LocalRay, { sz::LOCAL_RAYS }> = StaticArray::new();
-/// Which local rays touch which 4×4 block of a tile visit: one bit per (block, ray).
-pub const BLOCK_WORDS: usize = block_words(sz::LOCAL_RAYS);
+/// Which local rays touch which block of a tile visit (8 × 8 blocks): one bit per (block, ray).
+pub const BLOCK_WORDS: usize = block_words(sz::LOCAL_RAYS, sz::BLOCK_GRID);
 static BLOCKS: StaticBuf<[u32; BLOCK_WORDS]> = StaticBuf::new([0; BLOCK_WORDS]);
 /// The scan being received: 12 B per beam.
 static SCAN: StaticBuf<ScanBuf<{ sz::MAX_BEAMS }>> = StaticBuf::new(ScanBuf::new());

@@ -41,7 +41,6 @@ use ogm_core::wire::{
 use ogm_core::{LogOdds, LogOddsGrid, Mapper, ScanBuf};
 use serde::Serialize;
 
-use crate::eval::{evaluate_methods, MethodMaps};
 use crate::link::{encode_run, DeviceEvent, HelloInfo, OwnedTile, StreamDecoder, StreamedMap};
 use crate::metrics::Summary;
 use crate::sim::{simulate, SimConfig};
@@ -85,13 +84,17 @@ pub struct FirmwareArgs {
     /// QEMU timeout, seconds.
     #[arg(long, default_value_t = 300)]
     pub timeout: u64,
-    /// Also score the firmware's bounded sampler against an unbounded host sampler (ground
-    /// truth, like eval-sim).
+    /// Also measure the accuracy cost of the firmware's bounds: the eval-sim sampler (offline,
+    /// 20 + 100 sweeps) with the firmware's compile-time sizes next to unbounded host buffers,
+    /// scored against ground truth; and, after a QEMU run, the same online.
     #[arg(long)]
     pub accuracy: bool,
-    /// No QEMU: only the host replays (for --accuracy; needs --fixed-updates).
+    /// No QEMU (with --accuracy).
     #[arg(long)]
     pub host_only: bool,
+    /// Worlds (seeds `seed`, `seed + 1`, …) the accuracy comparison is pooled over.
+    #[arg(long, default_value_t = 1)]
+    pub runs: u32,
     /// Write report.json (and the raw stream) here.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -119,6 +122,7 @@ impl Default for FirmwareArgs {
             timeout: 300,
             accuracy: false,
             host_only: false,
+            runs: 1,
             out: None,
             verbose: false,
             decode: None,
@@ -149,8 +153,10 @@ pub struct Figures {
     pub updates_per_scan: f64,
     /// Instructions per sampled patch (amortised: tile visits' ray gathering included).
     pub per_patch: f64,
-    /// Stack high-water mark, bytes.
+    /// Stack high-water mark of the mapping loop, bytes.
     pub stack_used: u32,
+    /// Stack high-water mark while the settings were applied (building the sampler), bytes.
+    pub stack_config: u32,
     /// Stack size, bytes.
     pub stack_size: u32,
 }
@@ -207,19 +213,26 @@ impl FirmwareReport {
     }
 }
 
-/// `--accuracy`: metrics of the three maps of the same run.
+/// `--accuracy`: metrics of the maps of the same runs.
 #[derive(Clone, Debug, Serialize)]
 pub struct Accuracy {
-    /// All cells with known truth.
+    /// Worlds pooled.
+    pub runs: u32,
+    /// Scans per world.
+    pub scans: Vec<usize>,
+    /// All cells with known truth: `traditional`, `offline_firmware_sizes`,
+    /// `offline_unbounded` (and `online_*` after a QEMU run).
     pub methods: BTreeMap<String, Summary>,
     /// Cells within 10 cells of a mapped cell.
     pub methods_near_mapped: BTreeMap<String, Summary>,
-    /// Sampler statistics of the bounded run.
-    pub bounded: SamplerReport,
-    /// … of the unbounded run.
-    pub unbounded: SamplerReport,
-    /// Sampler updates per scan used.
-    pub updates: Vec<u32>,
+    /// Rays that did not fit the per-tile list, summed over the runs (offline, firmware sizes).
+    pub local_overflow_firmware: u64,
+    /// … unbounded (0 by construction).
+    pub local_overflow_unbounded: u64,
+    /// Tile visits, summed (offline, firmware sizes).
+    pub tile_visits: u64,
+    /// Ray-store thinnings (firmware sizes), summed.
+    pub thinnings: u32,
 }
 
 /// Buffer sizes of a replay.
@@ -281,7 +294,10 @@ impl<N: Count> Replay<N> {
                 sample: vec![0; geometry.len().div_ceil(32)],
                 counts: vec![N::default(); geometry.len()],
                 local: vec![LocalRay::default(); sizes.local],
-                blocks: vec![0; block_words(sizes.local)],
+                blocks: vec![
+                    0;
+                    block_words(sizes.local, ogm_core::wire::firmware_sizes::BLOCK_GRID)
+                ],
             },
         )
         .map_err(|x| e("sampler", x))?;
@@ -710,7 +726,7 @@ fn figures(g: &Groups, hello: &HelloInfo) -> Figures {
     f.updates_per_scan = updates as f64 / n;
     f.per_patch = sampler as f64 * ns_per_tick / updates.max(1) as f64;
     if let Some(d) = &g.done {
-        (f.stack_used, f.stack_size) = (d.stack_used, d.stack_size);
+        (f.stack_used, f.stack_config, f.stack_size) = (d.stack_used, d.stack_config, d.stack_size);
     }
     f
 }
@@ -1039,19 +1055,9 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
             .collect();
     }
     if args.accuracy {
-        if args.host_only {
-            let n = args
-                .fixed_updates
-                .context("--host-only needs --fixed-updates (no firmware to report counts)")?;
-            updates_used = vec![n; scans.len()];
-        }
-        report.accuracy = Some(accuracy(
-            &world,
-            &sim.observed,
-            &input.bytes,
-            &updates_used,
-            &scans,
-        )?);
+        let online = (!args.host_only && !updates_used.is_empty())
+            .then_some((input.bytes.as_slice(), updates_used.as_slice()));
+        report.accuracy = Some(accuracy(args, &world, &sim, &scans, online)?);
     }
     if let Some(out) = &args.out {
         std::fs::create_dir_all(out)?;
@@ -1061,59 +1067,119 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     Ok(report)
 }
 
-/// The firmware's bounds against the unbounded host configuration on the same input, seed
-/// and update counts, scored against ground truth.
+/// The accuracy cost of the firmware's bounds: the eval-sim sampler (`crate::sampling`,
+/// offline: the online map, then 20 burn-in + 100 counted sweeps) with the firmware's
+/// compile-time buffer sizes next to unbounded host buffers, on `args.runs` generated worlds
+/// (the first is `world`, already simulated), pooled and scored against ground truth. After a
+/// QEMU run (`online`: its input and update counts) the online replay is scored the same way,
+/// with firmware sizes and unbounded.
 fn accuracy(
+    args: &FirmwareArgs,
     world: &World,
-    observed: &[bool],
-    input: &[u8],
-    updates: &[u32],
+    sim: &crate::sim::SimRun,
     scans: &[crate::explore::ScanRecord],
+    online: Option<(&[u8], &[u32])>,
 ) -> anyhow::Result<Accuracy> {
-    let get = |seq: u32| updates.get(seq as usize).copied();
-    let (bounded, _) = replay::<u8>(input, FIRMWARE_SIZES, get, |_| {})?;
-    let total_rays: usize = scans.iter().map(|s| s.beams.len()).sum();
-    let unbounded_sizes = Sizes {
-        rays: total_rays.max(1),
-        scans: scans.len().max(1),
-        local: total_rays.clamp(1, 1 << 16),
+    use crate::eval::NEAR_MAPPED_CELLS;
+    use crate::metrics::{mask_within, PrAccumulator};
+    use crate::sampling::{run_sampler, Bounds, SamplingConfig, Variant};
+
+    let mut all: BTreeMap<String, PrAccumulator> = BTreeMap::new();
+    let mut near: BTreeMap<String, PrAccumulator> = BTreeMap::new();
+    let mut acc = Accuracy {
+        runs: args.runs.max(1),
+        scans: Vec::new(),
+        methods: BTreeMap::new(),
+        methods_near_mapped: BTreeMap::new(),
+        local_overflow_firmware: 0,
+        local_overflow_unbounded: 0,
+        tile_visits: 0,
+        thinnings: 0,
     };
-    let (unbounded, _) = replay::<u32>(input, unbounded_sizes, get, |_| {})?;
-    let bounded = bounded.context("no Config in the input")?;
-    let unbounded = unbounded.context("no Config in the input")?;
-    let (gw, ww, wh) = (usize::from(fw::WIDTH), world.width, world.height);
-    let crop = |v: Vec<f64>| -> Vec<f64> {
-        (0..wh)
-            .flat_map(|y| (0..ww).map(move |x| (x, y)))
-            .map(|(x, y)| v[y * gw + x])
-            .collect()
+    let fw_cfg = SamplingConfig {
+        bounds: Bounds {
+            rays: Some(fw::RAYS),
+            scans: Some(fw::SCANS),
+            local: Some(fw::LOCAL_RAYS),
+            u8_counts: true,
+        },
+        ..SamplingConfig::default()
     };
-    let mut maps = MethodMaps::new();
-    maps.insert(
-        "traditional".into(),
-        crop(
-            bounded
-                .mapper
-                .grid()
-                .cells()
-                .iter()
-                .map(|l| l.probability())
-                .collect(),
-        ),
-    );
-    maps.insert("gibbs_l9_border_firmware".into(), crop(bounded.marginals()));
-    maps.insert(
-        "gibbs_l9_border_unbounded".into(),
-        crop(unbounded.marginals()),
-    );
-    let (methods, near) = evaluate_methods(world, &[(maps, observed.to_vec())])?;
-    Ok(Accuracy {
-        methods,
-        methods_near_mapped: near,
-        bounded: bounded.sampler_report(),
-        unbounded: unbounded.sampler_report(),
-        updates: updates.to_vec(),
-    })
+    let host_cfg = SamplingConfig::default();
+    for run in 0..acc.runs {
+        let (w, s);
+        let (world, sim, scans) = if run == 0 {
+            (world, sim, scans)
+        } else {
+            w = firmware_world(&FirmwareArgs {
+                seed: args.seed + u64::from(run),
+                ..args.clone()
+            })?;
+            s = simulate(&w, &SimConfig::default(), args.seed + u64::from(run))?;
+            (&w, &s, s.scans.as_slice())
+        };
+        acc.scans.push(scans.len());
+        let mask = mask_within(&sim.observed, world.width, world.height, NEAR_MAPPED_CELLS);
+        let mut score = |name: &str, probs: &[f64]| -> anyhow::Result<()> {
+            all.entry(name.into())
+                .or_default()
+                .add(probs, &world.cells, None)?;
+            near.entry(name.into())
+                .or_default()
+                .add(probs, &world.cells, Some(&mask))?;
+            Ok(())
+        };
+        let seed = args.seed + u64::from(run);
+        let trad: Vec<f64> = sim.map.iter().map(|l| l.probability()).collect();
+        score("traditional", &trad)?;
+        for (name, cfg) in [
+            ("offline_firmware_sizes", &fw_cfg),
+            ("offline_unbounded", &host_cfg),
+        ] {
+            let o = run_sampler(
+                sim.geometry,
+                &sim.mapper_config,
+                scans,
+                &sim.map,
+                Variant::L9Border,
+                cfg,
+                seed,
+            )?;
+            score(name, &o.marginals)?;
+            if cfg.bounds.rays.is_some() {
+                acc.local_overflow_firmware += o.stats.local_overflow;
+                acc.tile_visits += o.stats.tile_visits;
+                acc.thinnings += o.store.thinnings;
+            } else {
+                acc.local_overflow_unbounded += o.stats.local_overflow;
+            }
+        }
+        if let (0, Some((input, updates))) = (run, online) {
+            let get = |seq: u32| updates.get(seq as usize).copied();
+            let total_rays: usize = scans.iter().map(|s| s.beams.len()).sum();
+            let unbounded = Sizes {
+                rays: total_rays.max(1),
+                scans: scans.len().max(1),
+                local: total_rays.clamp(1, 1 << 16),
+            };
+            let (b, _) = replay::<u8>(input, FIRMWARE_SIZES, get, |_| {})?;
+            let (u, _) = replay::<u32>(input, unbounded, get, |_| {})?;
+            let (gw, ww, wh) = (usize::from(fw::WIDTH), world.width, world.height);
+            let crop = |v: &[f64]| -> Vec<f64> {
+                (0..wh)
+                    .flat_map(|y| (0..ww).map(move |x| y * gw + x))
+                    .map(|i| v[i])
+                    .collect()
+            };
+            if let (Some(b), Some(u)) = (b, u) {
+                score("online_firmware_sizes", &crop(&b.marginals()))?;
+                score("online_unbounded", &crop(&u.marginals()))?;
+            }
+        }
+    }
+    acc.methods = all.iter().map(|(k, v)| (k.clone(), v.summary())).collect();
+    acc.methods_near_mapped = near.iter().map(|(k, v)| (k.clone(), v.summary())).collect();
+    Ok(acc)
 }
 
 /// Prints a report.
@@ -1147,14 +1213,14 @@ pub fn print_report(r: &FirmwareReport) {
     let f = &r.figures;
     if f.scans > 0 {
         println!(
-            "instructions (qemu -icount shift=0): per cell update {:.1}; per scan {:.0} (max {}, {:.0} beams, {:.0} cells); store+refresh {:.0}/scan; per sampled patch {:.0} ({} updates, {:.0}/scan); stack {} of {} B",
+            "instructions (qemu -icount shift=0): per cell update {:.1}; per scan {:.0} (max {}, {:.0} beams, {:.0} cells); store+refresh {:.0}/scan; per sampled patch {:.0} ({} updates, {:.0}/scan); stack {} B (mapping loop) / {} B (building the sampler) of {} B",
             f.insert_per_cell, f.insert_per_scan, f.insert_per_scan_max, f.beams_per_scan,
             f.cells_per_scan, f.store_per_scan, f.per_patch, f.sampler_updates,
-            f.updates_per_scan, f.stack_used, f.stack_size
+            f.updates_per_scan, f.stack_used, f.stack_config, f.stack_size
         );
     }
     if let Some(a) = &r.accuracy {
-        println!("accuracy (all cells / near mapped cells): max F1, max precision");
+        println!("accuracy, L = 9 + border (all cells | near mapped cells): max F1, max precision; online_*: first world only");
         for (k, v) in &a.methods {
             let n = &a.methods_near_mapped[k];
             println!(
@@ -1163,11 +1229,8 @@ pub fn print_report(r: &FirmwareReport) {
             );
         }
         println!(
-            "  local-list overflow: bounded {} / unbounded {}; store thinnings {} / {}",
-            a.bounded.local_overflow,
-            a.unbounded.local_overflow,
-            a.bounded.store.thinnings,
-            a.unbounded.store.thinnings
+            "  {} world(s), {:?} scans; offline local-list overflow: firmware sizes {} / unbounded {}; ray-store thinnings {}",
+            a.runs, a.scans, a.local_overflow_firmware, a.local_overflow_unbounded, a.thinnings
         );
     }
     if r.exit_code.is_some() {
@@ -1206,6 +1269,9 @@ pub fn cli(args: &FirmwareArgs) -> anyhow::Result<()> {
             g.done
         );
         return Ok(());
+    }
+    if args.host_only && !args.accuracy {
+        bail!("--host-only only makes sense with --accuracy");
     }
     if !args.host_only {
         if let Some(why) = toolchain_missing() {

@@ -78,6 +78,10 @@ pub struct SamplingConfig {
     pub p_rand_patch: f32,
     /// Log2 of the tile edge.
     pub tile_shift: u8,
+    /// Sweeps of a tile per visit.
+    pub visit_sweeps: u8,
+    /// Blocks per side of the tile-visit ray index.
+    pub block_grid: u8,
     /// Initial sample: occupied iff the online log-odds exceeds this (raw LSB).
     pub init_threshold: i16,
     /// Buffer bounds.
@@ -94,6 +98,8 @@ impl Default for SamplingConfig {
             outlier_weight: 0.01,
             p_rand_patch: 0.001,
             tile_shift: 4,
+            visit_sweeps: 8,
+            block_grid: 16,
             init_threshold: -1,
             bounds: Bounds::default(),
         }
@@ -115,7 +121,8 @@ pub struct SamplerOutput {
     pub seconds_per_sweep: f64,
 }
 
-/// Runs `variant` on a dataset whose online log-odds map is `map`.
+/// Runs `variant` on a dataset whose online log-odds map is `map`: burn-in, then `cfg.sweeps`
+/// counted sweeps.
 pub fn run_sampler(
     geometry: GridGeometry,
     mapper: &MapperConfig,
@@ -125,18 +132,104 @@ pub fn run_sampler(
     cfg: &SamplingConfig,
     seed: u64,
 ) -> anyhow::Result<SamplerOutput> {
-    match variant {
-        Variant::L1 => {
-            let p = ogm_core::prior::occupancy_prior().p_occupied();
-            let prior = ConstantCellPrior::new(p).map_err(|e| anyhow!("cell prior {p}: {e}"))?;
-            run_with(geometry, mapper, scans, map, prior, cfg, seed)
+    let mut p = Prepared::new(geometry, mapper, scans, map, variant, cfg, seed)?;
+    let t0 = Instant::now();
+    p.sweeps(cfg.burn_in + cfg.sweeps);
+    let seconds = t0.elapsed().as_secs_f64();
+    Ok(SamplerOutput {
+        marginals: p.marginals(),
+        stats: p.stats(),
+        store: p.store_stats(),
+        seconds,
+        seconds_per_sweep: seconds / f64::from((cfg.burn_in + cfg.sweeps).max(1)),
+    })
+}
+
+/// A sampler set up on a dataset (rays stored, sample initialised), ready to sweep.
+pub struct Prepared {
+    inner: Box<dyn Sweeper>,
+}
+
+trait Sweeper {
+    fn sweeps(&mut self, n: u32);
+    fn marginals(&self) -> Vec<f64>;
+    fn stats(&self) -> SamplerStats;
+    fn store_stats(&self) -> StoreStats;
+}
+
+type Store = RayStore<Vec<StoredScan>, Vec<StoredRay>>;
+
+struct Session<P, N: ogm_core::gibbs::Count> {
+    store: Store,
+    gibbs: Gibbs<P, Vec<u32>, Vec<N>, Vec<LocalRay>, Vec<u32>, N>,
+    sweep: u32,
+}
+
+impl<P: PatchPrior, N: ogm_core::gibbs::Count> Sweeper for Session<P, N> {
+    fn sweeps(&mut self, n: u32) {
+        for _ in 0..n {
+            self.gibbs.step(&mut self.store, self.sweep);
         }
-        Variant::L9 => run_with(geometry, mapper, scans, map, UnconditionedPrior, cfg, seed),
-        Variant::L9Border => run_with(geometry, mapper, scans, map, BorderPrior, cfg, seed),
+    }
+    fn marginals(&self) -> Vec<f64> {
+        (0..self.gibbs.geometry().len())
+            .map(|i| self.gibbs.marginal(i).map_or(0.5, f64::from))
+            .collect()
+    }
+    fn stats(&self) -> SamplerStats {
+        self.gibbs.stats()
+    }
+    fn store_stats(&self) -> StoreStats {
+        self.store.stats()
     }
 }
 
-fn run_with<P: PatchPrior>(
+impl Prepared {
+    /// Stores the dataset's rays and initialises `variant` from the thresholded `map`.
+    pub fn new(
+        geometry: GridGeometry,
+        mapper: &MapperConfig,
+        scans: &[ScanRecord],
+        map: &[LogOdds],
+        variant: Variant,
+        cfg: &SamplingConfig,
+        seed: u64,
+    ) -> anyhow::Result<Prepared> {
+        let inner: Box<dyn Sweeper> = match variant {
+            Variant::L1 => {
+                let p = ogm_core::prior::occupancy_prior().p_occupied();
+                let prior =
+                    ConstantCellPrior::new(p).map_err(|e| anyhow!("cell prior {p}: {e}"))?;
+                session(geometry, mapper, scans, map, prior, cfg, seed)?
+            }
+            Variant::L9 => session(geometry, mapper, scans, map, UnconditionedPrior, cfg, seed)?,
+            Variant::L9Border => session(geometry, mapper, scans, map, BorderPrior, cfg, seed)?,
+        };
+        Ok(Prepared { inner })
+    }
+
+    /// Runs `n` sweeps (K/L patch updates each).
+    pub fn sweeps(&mut self, n: u32) {
+        self.inner.sweeps(n);
+    }
+
+    /// Current marginal estimates (0.5 before the first counted sweep).
+    pub fn marginals(&self) -> Vec<f64> {
+        self.inner.marginals()
+    }
+
+    /// The sampler's counters.
+    pub fn stats(&self) -> SamplerStats {
+        self.inner.stats()
+    }
+
+    /// The ray store's counters.
+    pub fn store_stats(&self) -> StoreStats {
+        self.inner.store_stats()
+    }
+}
+
+fn session<P: PatchPrior + 'static>(
     geometry: GridGeometry,
     mapper: &MapperConfig,
     scans: &[ScanRecord],
@@ -144,15 +237,19 @@ fn run_with<P: PatchPrior>(
     prior: P,
     cfg: &SamplingConfig,
     seed: u64,
-) -> anyhow::Result<SamplerOutput> {
-    if cfg.bounds.u8_counts {
-        run_counts::<P, u8>(geometry, mapper, scans, map, prior, cfg, seed)
+) -> anyhow::Result<Box<dyn Sweeper>> {
+    Ok(if cfg.bounds.u8_counts {
+        Box::new(build::<P, u8>(
+            geometry, mapper, scans, map, prior, cfg, seed,
+        )?)
     } else {
-        run_counts::<P, u32>(geometry, mapper, scans, map, prior, cfg, seed)
-    }
+        Box::new(build::<P, u32>(
+            geometry, mapper, scans, map, prior, cfg, seed,
+        )?)
+    })
 }
 
-fn run_counts<P: PatchPrior, N: ogm_core::gibbs::Count>(
+fn build<P: PatchPrior, N: ogm_core::gibbs::Count>(
     geometry: GridGeometry,
     mapper: &MapperConfig,
     scans: &[ScanRecord],
@@ -160,7 +257,7 @@ fn run_counts<P: PatchPrior, N: ogm_core::gibbs::Count>(
     prior: P,
     cfg: &SamplingConfig,
     seed: u64,
-) -> anyhow::Result<SamplerOutput> {
+) -> anyhow::Result<Session<P, N>> {
     let total_rays: usize = scans.iter().map(|s| s.beams.len()).sum();
     let b = cfg.bounds;
     let mut store = RayStore::new(
@@ -174,7 +271,7 @@ fn run_counts<P: PatchPrior, N: ogm_core::gibbs::Count>(
     for s in scans {
         store.add_scan(&s.pose, &s.beams);
     }
-    let cells_per_patch = prior.size() as u32 * prior.size() as u32;
+    let cells_per_patch = u32::from(prior.size()) * u32::from(prior.size());
     let fm = ForwardModel::gaussian(
         cfg.sigma_cells,
         cfg.outlier_weight,
@@ -187,7 +284,8 @@ fn run_counts<P: PatchPrior, N: ogm_core::gibbs::Count>(
         max_candidates: cfg.max_candidates,
         init_threshold: LogOdds(cfg.init_threshold),
         tile_shift: cfg.tile_shift,
-        visit_sweeps: 4,
+        visit_sweeps: cfg.visit_sweeps,
+        block_grid: cfg.block_grid,
         seed,
     };
     let local = b.local.unwrap_or(total_rays.clamp(1, 1 << 16));
@@ -195,7 +293,7 @@ fn run_counts<P: PatchPrior, N: ogm_core::gibbs::Count>(
         sample: vec![0u32; geometry.len().div_ceil(32)],
         counts: vec![N::default(); geometry.len()],
         local: vec![LocalRay::default(); local],
-        blocks: vec![0u32; block_words(local)],
+        blocks: vec![0u32; block_words(local, cfg.block_grid)],
     };
     let mut gibbs =
         Gibbs::new(geometry, prior, fm, sc, buf).map_err(|e| anyhow!("sampler: {e}"))?;
@@ -203,19 +301,9 @@ fn run_counts<P: PatchPrior, N: ogm_core::gibbs::Count>(
         .reset(map, &mut store)
         .map_err(|e| anyhow!("sampler reset: {e}"))?;
     let sweep = (geometry.len() as u32).div_ceil(cells_per_patch);
-    let t0 = Instant::now();
-    for _ in 0..cfg.burn_in + cfg.sweeps {
-        gibbs.step(&mut store, sweep);
-    }
-    let seconds = t0.elapsed().as_secs_f64();
-    let marginals = (0..geometry.len())
-        .map(|i| gibbs.marginal(i).map_or(0.5, f64::from))
-        .collect();
-    Ok(SamplerOutput {
-        marginals,
-        stats: gibbs.stats(),
-        store: store.stats(),
-        seconds,
-        seconds_per_sweep: seconds / f64::from((cfg.burn_in + cfg.sweeps).max(1)),
+    Ok(Session {
+        store,
+        gibbs,
+        sweep,
     })
 }

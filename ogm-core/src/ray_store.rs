@@ -59,7 +59,7 @@ pub struct RayGeometry {
 }
 
 /// Counters of what the store did.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct StoreStats {
     /// Scans accepted.

@@ -65,11 +65,13 @@ pub mod firmware_sizes {
     /// Beams per scan buffer (LD06: 4500 points/s at 10 Hz = 450 per turn = 38 packets).
     pub const MAX_BEAMS: usize = 456;
     /// Ray store: rays (6 bytes each).
-    pub const RAYS: usize = 2816;
+    pub const RAYS: usize = 3072;
     /// Ray store: scans (20 bytes each).
     pub const SCANS: usize = 128;
     /// The sampler's per-tile ray list (`LocalRay`, 28 bytes each, plus its block bitsets).
-    pub const LOCAL_RAYS: usize = 224;
+    pub const LOCAL_RAYS: usize = 128;
+    /// Blocks per side of the sampler's tile-visit ray index (`gibbs::SamplerConfig::block_grid`).
+    pub const BLOCK_GRID: u8 = 8;
 }
 
 /// A pose on the wire.
@@ -231,6 +233,7 @@ impl RunConfig {
             tile_shift: self.sampler_tile_shift,
             visit_sweeps: self.visit_sweeps,
             seed: self.seed,
+            block_grid: firmware_sizes::BLOCK_GRID,
         }
     }
 }
@@ -537,10 +540,13 @@ pub struct Done {
     pub grid_fnv: u32,
     /// FNV-1a over every marginal count byte, row-major.
     pub counts_fnv: u32,
-    /// Stack high-water mark, bytes.
+    /// Stack high-water mark of the mapping loop (after the settings were applied), bytes.
     pub stack_used: u32,
     /// Stack size, bytes.
     pub stack_size: u32,
+    /// Stack high-water mark up to and including applying the settings (building the
+    /// sampler, a one-off peak), bytes.
+    pub stack_config: u32,
 }
 
 /// Device → host.

@@ -40,7 +40,7 @@ fn sampler<P: PatchPrior>(
         sample: vec![0; g.len().div_ceil(32)],
         counts: vec![0; g.len()],
         local: vec![LocalRay::default(); 4096],
-        blocks: vec![0; block_words(4096)],
+        blocks: vec![0; block_words(4096, SamplerConfig::default().block_grid)],
     };
     Gibbs::new(g, prior, fm, cfg, buf).unwrap()
 }

@@ -194,13 +194,30 @@ pub struct StackUsage {
     pub used: u32,
 }
 
+extern "C" {
+    // Linker-script symbols (cortex-m-rt's link.x); only their addresses are used.
+    static _stack_end: u32;
+    static _stack_start: u32;
+}
+
+/// Paints the unused part of the stack again (everything more than 256 bytes below the current
+/// stack pointer), so that [`stack_usage`] afterwards reports the high-water mark from here on:
+/// e.g. of the mapping loop, without the one-off peak of building the sampler.
+pub fn repaint_stack() {
+    let lo = core::ptr::addr_of!(_stack_end) as usize;
+    let sp = cortex_m::register::msp::read() as usize;
+    let mut p = lo;
+    while p + 256 < sp {
+        // SAFETY: `[lo, sp - 256)` is stack RAM below the current stack pointer: no live frame
+        // is there (the AAPCS has no red zone and this firmware enables no interrupts whose
+        // handlers could be running on it), so overwriting it with the paint value is harmless.
+        unsafe { (p as *mut u32).write_volatile(cortex_m_rt::STACK_PAINT_VALUE) };
+        p += 4;
+    }
+}
+
 /// See [`StackUsage`].
 pub fn stack_usage() -> StackUsage {
-    extern "C" {
-        // Linker-script symbols (cortex-m-rt's link.x); only their addresses are used.
-        static _stack_end: u32;
-        static _stack_start: u32;
-    }
     let lo = core::ptr::addr_of!(_stack_end) as usize;
     let hi = core::ptr::addr_of!(_stack_start) as usize;
     let mut p = lo;

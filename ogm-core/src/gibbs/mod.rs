@@ -51,7 +51,7 @@ use crate::forward_model::{ForwardModel, LogLik};
 use crate::geometry::{CellCoord, GridGeometry};
 use crate::ray_store::{RayStore, StoredRay, StoredScan, NONE};
 use crate::Angle;
-pub use local::{block_words, LocalRay};
+pub use local::{block_words, LocalRay, MAX_BLOCK_GRID};
 use local::{for_each_ray, set_bit, BlockGrid};
 pub use priors::{BorderPrior, ConstantCellPrior, UnconditionedPrior};
 pub use segment::Segment;
@@ -131,6 +131,10 @@ pub struct SamplerConfig {
     pub tile_shift: u8,
     /// Length of a tile visit, in sweeps of the tile (tile cells / L updates each).
     pub visit_sweeps: u8,
+    /// Blocks per side of the tile visit's ray index (1 ..= [`MAX_BLOCK_GRID`]); the `blocks`
+    /// buffer needs [`block_words`]`(local capacity, block_grid)` words. Finer is faster and
+    /// larger (see [`local`]).
+    pub block_grid: u8,
     /// RNG seed.
     pub seed: u64,
 }
@@ -143,14 +147,15 @@ impl Default for SamplerConfig {
             max_candidates: MAX_CANDIDATES as u8,
             init_threshold: LogOdds(-1),
             tile_shift: 4,
-            visit_sweeps: 4,
+            visit_sweeps: 8,
+            block_grid: 8,
             seed: 1,
         }
     }
 }
 
 /// Counters.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SamplerStats {
     /// Patch updates done.
@@ -289,13 +294,14 @@ where
         need(k, buf.counts.as_ref().len())?;
         need(1, buf.local.as_ref().len())?;
         need(
-            block_words(buf.local.as_ref().len()),
+            block_words(buf.local.as_ref().len(), config.block_grid),
             buf.blocks.as_ref().len(),
         )?;
         let size = i32::from(prior.size());
         let valid = (size == 1 || size == 3)
             && config.max_candidates > 0
             && (2..=12).contains(&config.tile_shift)
+            && (1..=MAX_BLOCK_GRID).contains(&config.block_grid)
             && config.p_rand_patch.is_finite();
         if !valid {
             return Err(Error::InvalidModel);
@@ -555,7 +561,10 @@ where
             (cells / (size * size) as u32).max(1) * u32::from(self.config.visit_sweeps.max(1));
         self.stats.tile_visits += 1;
         let h = size / 2;
-        self.gather(store, BlockGrid::new(x0 - h, y0 - h, x1 + h, y1 + h));
+        self.gather(
+            store,
+            BlockGrid::new(x0 - h, y0 - h, x1 + h, y1 + h, self.config.block_grid),
+        );
     }
 
     /// Collects the rays visiting the box of `grid` into the local list and block bitsets.
@@ -660,7 +669,13 @@ where
         let h = i32::from(self.prior.size()) / 2;
         self.gather(
             store,
-            BlockGrid::new(centre.x - h, centre.y - h, centre.x + h, centre.y + h),
+            BlockGrid::new(
+                centre.x - h,
+                centre.y - h,
+                centre.x + h,
+                centre.y + h,
+                self.config.block_grid,
+            ),
         );
         self.visit_left = 0;
         let (_, border) = self.config_and_border(centre);
@@ -836,6 +851,14 @@ where
             return None;
         }
         let (first, last) = seg.major_range(centre, h)?;
+        // A ray already blocked before the patch's first possible step cannot see the patch.
+        let f = store
+            .rays()
+            .get(lr.index as usize)
+            .map_or(NONE, |r| r.first_occupied);
+        if f != NONE && u32::from(f) < first {
+            return None;
+        }
         let size = 2 * h + 1;
         let mut cells = [(0u16, 0u16); 3];
         let mut n_cells = 0;
@@ -851,10 +874,6 @@ where
         });
         let a = cells.first().filter(|_| n_cells > 0)?.0;
         let b = cells.get(n_cells.checked_sub(1)?)?.0;
-        let f = store
-            .rays()
-            .get(lr.index as usize)
-            .map_or(NONE, |r| r.first_occupied);
         if f != NONE && f < a {
             return None; // occupied before the patch: the patch cannot matter
         }
