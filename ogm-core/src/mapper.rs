@@ -21,7 +21,7 @@
 
 use crate::angle::Angle;
 use crate::error::{Error, Result};
-use crate::fixed::Clamp;
+use crate::fixed::{Clamp, LogOdds};
 use crate::geometry::{CellCoord, GridGeometry, Pose};
 use crate::grid::LogOddsGrid;
 use crate::hal::{Beam, Range};
@@ -487,6 +487,19 @@ where
 
     /// Integrates one scan taken at `pose`.
     pub fn insert_scan(&mut self, pose: &Pose, beams: &[Beam]) -> Result<ScanStats> {
+        self.insert_scan_with(pose, beams, |_, _, _| {})
+    }
+
+    /// [`Mapper::insert_scan`] that also reports every cell it changes as
+    /// `on_update(index, before, after)`, in update order (each cell at most once per scan). The
+    /// sampler uses it to seed cells the moment they are first observed (`before == 0`).
+    #[inline]
+    pub fn insert_scan_with(
+        &mut self,
+        pose: &Pose,
+        beams: &[Beam],
+        mut on_update: impl FnMut(usize, LogOdds, LogOdds),
+    ) -> Result<ScanStats> {
         let Mapper {
             grid,
             marks,
@@ -510,8 +523,10 @@ where
                 CellUpdate::Free => free,
             };
             if let Some(cell) = cells.get_mut(i) {
+                let before = *cell;
                 // In [min, max] ⊂ i16.
                 cell.0 = (i32::from(cell.0) + delta).clamp(min, max) as i16;
+                on_update(i, before, *cell);
             }
         })
     }

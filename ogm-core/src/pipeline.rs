@@ -2,6 +2,7 @@
 //!
 //! `read scan → look up pose → (sort, for the cone model) → insert`. The firmware calls it with
 //! its UART-backed sensor; `host-sim` with its synthetic lidar. Same function, same results.
+//! [`insert_and_seed`] is the step that keeps an online sampler in sync with the growing map.
 
 use crate::geometry::Pose;
 use crate::hal::{PoseSource, RangeSensor, ScanBuf};
@@ -61,4 +62,47 @@ where
         beams_overflowed: scan.overflow(),
         stats,
     })
+}
+
+/// Integrates a scan into the online map *and* an online sampler: inserts it into `mapper`, seeds
+/// every cell this scan observes for the first time (log-odds was exactly 0) in the sampler's
+/// current sample from its new log-odds (occupied iff above the sampler's `init_threshold`),
+/// stores the scan's rays, and refreshes the first-occupied caches — of every ray if a cell was
+/// seeded, else of the new rays only. Returns the mapper's statistics and the new rays' range.
+///
+/// Without seeding, newly observed space would start as whatever the sample said about the
+/// unknown (the border prior rarely flips a consistent all-free region, so walls seen later would
+/// be slow to appear).
+#[allow(clippy::type_complexity)]
+pub fn insert_and_seed<S, M, SS, RR, P, B, C, L, K, N>(
+    mapper: &mut Mapper<S, M>,
+    store: &mut crate::ray_store::RayStore<SS, RR>,
+    gibbs: &mut crate::gibbs::Gibbs<P, B, C, L, K, N>,
+    pose: &Pose,
+    beams: &[crate::Beam],
+) -> crate::Result<(ScanStats, core::ops::Range<usize>)>
+where
+    S: AsRef<[crate::LogOdds]> + AsMut<[crate::LogOdds]>,
+    M: AsRef<[u32]> + AsMut<[u32]>,
+    SS: AsRef<[crate::ray_store::StoredScan]> + AsMut<[crate::ray_store::StoredScan]>,
+    RR: AsRef<[crate::ray_store::StoredRay]> + AsMut<[crate::ray_store::StoredRay]>,
+    P: crate::gibbs::PatchPrior,
+    N: crate::gibbs::Count,
+    B: AsRef<[u32]> + AsMut<[u32]>,
+    C: AsRef<[N]> + AsMut<[N]>,
+    L: AsRef<[crate::gibbs::LocalRay]> + AsMut<[crate::gibbs::LocalRay]>,
+    K: AsRef<[u32]> + AsMut<[u32]>,
+{
+    let threshold = gibbs.config().init_threshold;
+    let mut seeded = false;
+    let stats = mapper.insert_scan_with(pose, beams, |i, before, after| {
+        if before.0 == 0 {
+            gibbs.seed(i, after > threshold);
+            seeded = true;
+        }
+    })?;
+    let new = store.add_scan(pose, beams);
+    let refresh = if seeded { 0..usize::MAX } else { new.clone() };
+    gibbs.refresh_rays(store, refresh);
+    Ok((stats, new))
 }

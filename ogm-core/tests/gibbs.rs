@@ -330,3 +330,53 @@ fn fixed_point_marginals_match_f64_reference_sampler() {
     eprintln!("marginals: mean |Δ| {mean:.4}, worst {worst:.4}");
     assert!(mean < 0.02 && worst < 0.15, "mean {mean} worst {worst}");
 }
+
+#[test]
+fn online_seeding_follows_first_observations_and_keeps_caches_exact() {
+    use ogm_core::pipeline::insert_and_seed;
+    let g = GridGeometry::new(24, 24, CELL, 0, 0).unwrap();
+    let max = 20 * CELL;
+    let mut st = store(g, max);
+    let grid = LogOddsGrid::new(g, vec![LogOdds::ZERO; g.len()]).unwrap();
+    let mut mapper =
+        Mapper::new(grid, vec![0; marks_len(g.len())], MapperConfig::new(max)).unwrap();
+    let fm = ForwardModel::gaussian(3.0, 0.01, 20.0).unwrap();
+    let mut s = sampler(g, ShapesPrior, fm, SamplerConfig::default());
+    s.reset(&vec![LogOdds::ZERO; g.len()], &mut st).unwrap();
+    // Unknown starts occupied (init threshold −1): everything is occupied before any scan.
+    assert!((0..g.len()).all(|i| s.occupied(i)));
+    let pose = Pose {
+        x_mm: 1250,
+        y_mm: 1250,
+        heading: Angle::ZERO,
+    };
+    let beams: Vec<Beam> = (0..64)
+        .map(|i| Beam {
+            angle: Angle((i * 1024) as u16),
+            range: Range::Hit(700),
+        })
+        .collect();
+    s.step(&mut st, 500);
+    let (stats, new) = insert_and_seed(&mut mapper, &mut st, &mut s, &pose, &beams).unwrap();
+    assert_eq!(new, 0..64);
+    assert!(stats.cells_hit > 20 && stats.cells_freed > 50);
+    for (i, l) in mapper.grid().cells().iter().enumerate() {
+        if l.0 != 0 {
+            assert_eq!(s.occupied(i), l.0 > 0, "cell {i} log-odds {}", l.0);
+        }
+    }
+    // The caches equal a from-scratch recomputation.
+    let before: Vec<u16> = st.rays().iter().map(|r| r.first_occupied).collect();
+    s.refresh_rays(&mut st, 0..usize::MAX);
+    let after: Vec<u16> = st.rays().iter().map(|r| r.first_occupied).collect();
+    assert_eq!(before, after);
+    // A second scan from the same pose observes nothing new: only its own rays are refreshed,
+    // and already-observed cells keep the sampler's state.
+    s.step(&mut st, 2000);
+    let sample: Vec<bool> = (0..g.len()).map(|i| s.occupied(i)).collect();
+    insert_and_seed(&mut mapper, &mut st, &mut s, &pose, &beams).unwrap();
+    assert_eq!(
+        sample,
+        (0..g.len()).map(|i| s.occupied(i)).collect::<Vec<_>>()
+    );
+}

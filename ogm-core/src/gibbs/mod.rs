@@ -407,6 +407,14 @@ where
         (((hi << 32 | lo) >> off) as u32) & ((1 << n) - 1)
     }
 
+    /// Sets cell `index` of the current sample — for seeding cells the moment the mapper first
+    /// observes them while the sampler runs online (see
+    /// [`crate::pipeline::insert_and_seed`]). The first-occupied caches of rays crossing the cell
+    /// are stale afterwards: call [`Gibbs::refresh_rays`] (once per scan is enough).
+    pub fn seed(&mut self, index: usize, occupied: bool) {
+        self.set_occupied(index, occupied);
+    }
+
     /// Samples accumulated into the marginal counts (≤ `Count::MAX`, halves when full).
     pub fn samples(&self) -> u32 {
         self.samples
