@@ -113,7 +113,8 @@ where
     R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
 {
     /// An empty store for rays on `geometry` from a sensor with the given range limits (the
-    /// mapper's). Needs room for at least one scan and one ray.
+    /// mapper's). Needs room for at least one scan and one ray, and a maximum range below
+    /// [`crate::gibbs::MAX_STEPS`] cells.
     pub fn new(
         geometry: GridGeometry,
         max_range_mm: u32,
@@ -130,7 +131,10 @@ where
                 actual: 0,
             });
         }
-        if max_range_mm == 0 || min_range_mm >= max_range_mm {
+        // The sampler's short-ray arithmetic needs rays of at most MAX_STEPS steps.
+        let reach = max_range_mm.div_ceil(geometry.cell_mm());
+        if max_range_mm == 0 || min_range_mm >= max_range_mm || reach >= crate::gibbs::MAX_STEPS - 2
+        {
             return Err(Error::InvalidModel);
         }
         Ok(RayStore {
@@ -376,5 +380,129 @@ where
         self.n_rays = wr;
         self.stats.thinnings = self.stats.thinnings.saturating_add(1);
         warn!("scan store full: kept every second scan ({} left)", ws);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn store(scans: usize, rays: usize) -> RayStore<Vec<StoredScan>, Vec<StoredRay>> {
+        let g = GridGeometry::new(100, 100, 100, 0, 0).unwrap();
+        RayStore::new(
+            g,
+            5_000,
+            100,
+            vec![StoredScan::default(); scans],
+            vec![StoredRay::default(); rays],
+        )
+        .unwrap()
+    }
+
+    fn scan(n: u16, range: Range) -> Vec<Beam> {
+        (0..n)
+            .map(|i| Beam {
+                angle: Angle(i.wrapping_mul(997)),
+                range,
+            })
+            .collect()
+    }
+
+    fn pose(x: i32) -> Pose {
+        Pose {
+            x_mm: x,
+            y_mm: 5_000,
+            heading: Angle::ZERO,
+        }
+    }
+
+    #[test]
+    fn stores_sorted_rays_and_measured_ranges() {
+        let mut s = store(4, 64);
+        let r = s.add_scan(&pose(5_000), &scan(10, Range::Hit(1_000)));
+        assert_eq!(r, 0..10);
+        assert!(s.rays().windows(2).all(|w| w[0].angle.0 <= w[1].angle.0));
+        // 1 m = 10 cells; along any direction that is 10 cells / step length steps (1/16 units).
+        for ray in s.rays() {
+            let g = s.ray_geometry(&pose(5_000), ray.angle);
+            let steps = f64::from(ray.z_q4) / 16.0;
+            let cells = steps * f64::from(g.step_q12) / 4096.0;
+            assert!((cells - 10.0).abs() < 0.6, "{cells} cells");
+        }
+        s.add_scan(&pose(5_000), &scan(3, Range::NoReturn));
+        s.add_scan(&pose(5_000), &scan(2, Range::Hit(50))); // inside the 100 mm minimum range
+        assert_eq!(s.rays().iter().filter(|r| r.z_q4 == NONE).count(), 3);
+        assert_eq!(s.stats().rays_invalid, 2);
+        assert_eq!((s.scans().len(), s.rays().len()), (3, 13));
+    }
+
+    #[test]
+    fn full_ray_store_thins_uniformly_and_decimates_new_scans() {
+        let mut s = store(16, 40);
+        for k in 0..4 {
+            s.add_scan(&pose(1_000 + k * 1_000), &scan(10, Range::Hit(2_000)));
+        }
+        assert_eq!((s.rays().len(), s.decimation()), (40, 1));
+        // The fifth scan does not fit: every stored scan keeps every second ray.
+        let new = s.add_scan(&pose(6_000), &scan(10, Range::Hit(2_000)));
+        assert_eq!(s.decimation(), 2);
+        assert_eq!(new.len(), 5);
+        assert_eq!(s.scans().len(), 5);
+        assert!(s.scans().iter().all(|sc| sc.len == 5), "{:?}", s.scans());
+        assert_eq!(s.stats().rays_thinned, 20);
+        assert_eq!(s.stats().rays_decimated, 5);
+        assert_eq!(s.stats().thinnings, 1);
+        // Scans stay contiguous and in order.
+        let mut next = 0;
+        for sc in s.scans() {
+            assert_eq!(sc.first, next);
+            next += sc.len;
+        }
+    }
+
+    #[test]
+    fn full_scan_store_keeps_every_second_scan() {
+        let mut s = store(4, 1_000);
+        for k in 0..4 {
+            s.add_scan(&pose(1_000 + k * 100), &scan(3, Range::Hit(2_000)));
+        }
+        s.add_scan(&pose(9_000), &scan(3, Range::Hit(2_000)));
+        let xs: Vec<i32> = s.scans().iter().map(|sc| sc.pose.x_mm).collect();
+        assert_eq!(xs, vec![1_000, 1_200, 9_000]);
+        assert_eq!(s.rays().len(), 9);
+        assert_eq!(s.stats().rays_thinned, 6);
+    }
+
+    #[test]
+    fn oversized_scans_and_tiny_stores_never_overflow() {
+        let mut s = store(1, 3);
+        for _ in 0..5 {
+            let r = s.add_scan(&pose(5_000), &scan(100, Range::Hit(1_500)));
+            assert!(r.end <= 3 && s.rays().len() <= 3 && s.scans().len() == 1);
+        }
+        assert!(RayStore::new(
+            GridGeometry::new(1, 1, 1, 0, 0).unwrap(),
+            0,
+            0,
+            vec![StoredScan::default()],
+            vec![StoredRay::default()]
+        )
+        .is_err());
+        assert!(RayStore::new(
+            GridGeometry::new(1, 1, 1, 0, 0).unwrap(),
+            10,
+            0,
+            Vec::<StoredScan>::new(),
+            vec![StoredRay::default()]
+        )
+        .is_err());
+        assert!(RayStore::new(
+            GridGeometry::new(1, 1, 1, 0, 0).unwrap(),
+            40_000,
+            0,
+            vec![StoredScan::default()],
+            vec![StoredRay::default()]
+        )
+        .is_err());
     }
 }
