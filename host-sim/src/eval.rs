@@ -115,8 +115,9 @@ pub fn collect_maps(paths: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
 /// image of the same stem beside it. The protocol is defined in cells (F = 75, σ = 3, ≈500×500
 /// worlds), so one map pixel is one cell, labelled with the canonical 0.05 m (Player/Stage
 /// bitmaps are 2.5–4.5 cm per pixel); a map wider or taller than [`EVAL_CELLS`] + 20 % is cropped
-/// to the [`EVAL_CELLS`]-square window (or strip) holding the most free cells, searched on a
-/// 25-cell stride — deterministic, and it keeps the building rather than the empty margins.
+/// to the [`EVAL_CELLS`]-square window (or strip) holding the most wall cells (occupied cells
+/// next to free ones), searched on a 25-cell stride — deterministic, and it keeps the building
+/// rather than empty margins or open halls.
 /// Finally every free region not connected to the largest one becomes occupied: Player/Stage
 /// draws solid obstacles as outlines, and a region no robot can enter or see into is solid for
 /// the simulator (and unknowable to any mapper), so scoring it as free would only measure that.
@@ -171,13 +172,20 @@ pub fn fill_enclosed(w: &mut World) {
     }
 }
 
-/// Lower-left corner of the `cw × ch` window with the most free cells (25-cell stride).
+/// Lower-left corner of the `cw × ch` window with the most wall cells (25-cell stride).
 fn densest_window(world: &World, cw: usize, ch: usize) -> (usize, usize) {
+    use crate::world::Truth;
     let (w, h) = (world.width, world.height);
+    let wall = |x: usize, y: usize| {
+        world.cells[y * w + x] == Truth::Occupied
+            && [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)]
+                .iter()
+                .any(|(dx, dy)| world.get(x as i64 + dx, y as i64 + dy) == Some(Truth::Free))
+    };
     let mut sat = vec![0u64; (w + 1) * (h + 1)];
     for y in 0..h {
         for x in 0..w {
-            let free = u64::from(world.cells[y * w + x] == crate::world::Truth::Free);
+            let free = u64::from(wall(x, y));
             sat[(y + 1) * (w + 1) + x + 1] =
                 free + sat[y * (w + 1) + x + 1] + sat[(y + 1) * (w + 1) + x] - sat[y * (w + 1) + x];
         }
@@ -212,6 +220,13 @@ pub struct EvalConfig {
     pub sim: SimConfig,
     /// Samplers.
     pub sampling: SamplingConfig,
+    /// Baseline methods (`mh`, `mh_heatmap`, `bp_sum`, `bp_max`, `dd`) to run besides the samplers.
+    #[serde(default)]
+    pub baselines: Vec<crate::baselines::Method>,
+    /// Their settings (forward model, cell prior, budgets); also defines the energy reported for
+    /// every method.
+    #[serde(default)]
+    pub baseline: crate::baselines::BaselineConfig,
 }
 
 /// Runs `eval-sim`.
@@ -221,10 +236,13 @@ pub fn run_sim(maps: &[PathBuf], out: &Path, cfg: &EvalConfig) -> anyhow::Result
     std::fs::create_dir_all(out)
         .with_context(|| format!("{}: cannot create output directory", out.display()))?;
     let mut pooled = Pooled::default();
+    // Per map too, so a reader can see where each method wins or loses.
+    let mut per_map: BTreeMap<String, Pooled> = BTreeMap::new();
     let mut infos = Vec::new();
     let mut seconds: BTreeMap<String, f64> = BTreeMap::new();
     let mut per_sweep: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut skipped = Vec::new();
+    let mut energies = crate::baselines::EnergyTable::default();
     let bar = progress::bar(
         files.len() as u64 * u64::from(cfg.runs),
         "simulated datasets",
@@ -255,6 +273,7 @@ pub fn run_sim(maps: &[PathBuf], out: &Path, cfg: &EvalConfig) -> anyhow::Result
             scans += run.scans.len();
             let mut m = MethodMaps::new();
             m.insert("traditional".into(), probabilities(&run.map));
+            let mut timed = Vec::new();
             for &v in &cfg.variants {
                 let o = run_sampler(
                     run.geometry,
@@ -266,13 +285,50 @@ pub fn run_sim(maps: &[PathBuf], out: &Path, cfg: &EvalConfig) -> anyhow::Result
                     s,
                 )?;
                 *seconds.entry(v.name().into()).or_default() += o.seconds;
+                timed.push((v.name().to_string(), o.seconds));
                 per_sweep
                     .entry(v.name().into())
                     .or_default()
                     .push(o.seconds_per_sweep);
                 m.insert(v.name().into(), o.marginals);
             }
+            // The baselines, and the energy of every method's map, on one shared factor graph.
+            let graph = crate::baselines::build_graph(
+                &run.geometry,
+                &run.mapper_config,
+                &run.scans,
+                &cfg.baseline,
+            )?;
+            let mut traces = Vec::new();
+            for &b in &cfg.baselines {
+                bar.set_message(format!("{name} run {}: {}", i + 1, b.name()));
+                let o = crate::baselines::run_on_graph(b, &graph, &run.map, &cfg.baseline, s)?;
+                *seconds.entry(b.name().into()).or_default() += o.seconds;
+                traces.push((b.name().to_string(), o.trace));
+                m.insert(b.name().into(), o.probs);
+            }
+            for (k, probs) in &m {
+                energies.add(&name, k, graph.energy_of_probs(probs));
+            }
+            if i == 0 && !traces.is_empty() {
+                // Dhiman et al.'s Fig. 3: energy against time; the samplers as end points.
+                let e = |k: &str| m.get(k).map(|p| graph.energy_of_probs(p).total());
+                let points: Vec<(String, f64, f64)> = std::iter::once(("traditional".into(), 0.0))
+                    .chain(timed)
+                    .filter_map(|(k, t)| e(&k).map(|e| (k, t, e)))
+                    .collect();
+                crate::baselines::plot::energy_vs_time_svg(
+                    out.join(format!("energy_{name}.svg")),
+                    &format!("Energy vs time, {name}"),
+                    &traces,
+                    &points,
+                )?;
+            }
             pooled.add(&world, &m, &run.observed)?;
+            per_map
+                .entry(name.clone())
+                .or_default()
+                .add(&world, &m, &run.observed)?;
             if i == 0 {
                 // One picture per map: ground truth, then every method's probability map.
                 let mut panels = vec![("ground truth".to_string(), render::truth_image(&world)?)];
@@ -329,11 +385,16 @@ pub fn run_sim(maps: &[PathBuf], out: &Path, cfg: &EvalConfig) -> anyhow::Result
         settings: serde_json::json!({
             "eval": cfg, "eval_cells": EVAL_CELLS,
             "seconds_per_map_sample": mean_per_sweep, "skipped": skipped,
+            "max_f1_per_map": per_map.iter().map(|(k, p)| {
+                (k.clone(), p.summaries(false).into_iter().map(|(m, s)| (m, s.max_f1)).collect::<BTreeMap<_, _>>())
+            }).collect::<BTreeMap<_, _>>(),
+            "energy": energies.to_json(),
         }),
         seconds,
     };
     report.write(&out.join("report.json"))?;
     println!("\n{}", report.table());
+    println!("{}", energies.table());
     for (k, v) in &mean_per_sweep {
         println!(
             "{k}: {:.1} ms per map sample (K/L patch updates)",
@@ -344,12 +405,25 @@ pub fn run_sim(maps: &[PathBuf], out: &Path, cfg: &EvalConfig) -> anyhow::Result
     Ok(())
 }
 
-/// Firmware-sized sampler buffers (see docs/benchmarks.md): for `eval-sim --firmware-bounds`.
+/// The firmware's sampler buffers, from `ogm_core::wire::firmware_sizes` (ray store rays and
+/// scans, the per-tile ray list, `u8` marginal counts): for `eval-sim --firmware-bounds`.
+/// [`with_firmware_bounds`] also sets the firmware's block grid.
 pub fn firmware_bounds() -> Bounds {
+    use ogm_core::wire::firmware_sizes as fw;
     Bounds {
-        rays: Some(4096),
-        scans: Some(64),
-        local: Some(512),
+        rays: Some(fw::RAYS),
+        scans: Some(fw::SCANS),
+        local: Some(fw::LOCAL_RAYS),
         u8_counts: true,
+    }
+}
+
+/// `cfg` as the firmware runs it: [`firmware_bounds`] and the firmware's tile-visit block grid
+/// (`ogm_core::wire::firmware_sizes::BLOCK_GRID`, which sizes its block bitsets).
+pub fn with_firmware_bounds(cfg: SamplingConfig) -> SamplingConfig {
+    SamplingConfig {
+        bounds: firmware_bounds(),
+        block_grid: ogm_core::wire::firmware_sizes::BLOCK_GRID,
+        ..cfg
     }
 }

@@ -24,12 +24,18 @@
 //!   the unconditioned `p(m_k)`.
 //!
 //! # Fallback for unseen borders
-//! A border that never occurred in the training data (or was pruned, see below) gets the
-//! **unconditioned L = 9 prior** instead, top-`k` by mass, flagged [`PriorSource::Fallback`].
-//! It always holds at least the all-free and all-occupied configurations, so the sampler never
-//! faces an empty candidate set; the likelihood then decides among the most common real-world
-//! patches, which pulls implausible neighbourhoods back towards plausible ones. An unseen
-//! 8-neighbour byte for L = 1 likewise falls back to [`occupancy_prior`].
+//! [`candidates`] gives a border that never occurred in the training data (or was pruned, see
+//! below) the **unconditioned L = 9 prior** instead, top-`k` by mass, flagged
+//! [`PriorSource::Fallback`]. It always holds at least the all-free and all-occupied
+//! configurations, so the sampler never faces an empty candidate set. [`candidates_into`] —
+//! what the sampler uses — first backs off to the **borders one cell away** (Hamming distance
+//! 1): the union of their candidates, each configuration with its largest log-prior, flagged
+//! [`PriorSource::Nearby`]; only if none of the 16 is in the table does it use the
+//! unconditioned prior. The back-off matters inside large unobserved regions: a random patch
+//! (p_randPatch) leaves a border that is "all occupied but one cell", which is rarely in the
+//! table; its neighbour "all occupied" says fill it in, where the unconditioned prior (74 %
+//! all-free) would carve a hole that grows. Both rules commute with the 8 rotations/flips. An
+//! unseen 8-neighbour byte for L = 1 falls back to [`occupancy_prior`].
 //!
 //! # Pruning
 //! To fit the flash budget the generator drops borders seen fewer than
@@ -63,6 +69,9 @@ pub enum PriorSource {
     Border,
     /// The border was not in the table; this is the unconditioned prior standing in for it.
     Fallback,
+    /// The border was not in the table; these are the candidates of the stored borders one cell
+    /// away ([`candidates_into`]).
+    Nearby,
     /// The unconditioned prior, asked for directly.
     Unconditioned,
 }
@@ -236,6 +245,52 @@ pub fn candidates(border: u16, k: usize) -> Candidates {
             PriorSource::Fallback,
         ),
     }
+}
+
+/// The candidates the sampler uses for `border`, most likely first, written into `out` (at most
+/// `out.len()`; never 0 for a non-empty `out`): the stored candidates of the border, or else the
+/// union of those of the stored borders one cell away (each configuration with its largest
+/// log-prior), or else the unconditioned prior. See the [module docs](self).
+pub fn candidates_into(border: u16, out: &mut [Candidate]) -> (usize, PriorSource) {
+    if let Some(c) = border_candidates(border) {
+        let n = c.iter().zip(out.iter_mut()).map(|(c, o)| *o = c).count();
+        return (n, PriorSource::Border);
+    }
+    let mut n = 0usize;
+    for bit in 0..16 {
+        let Some(c) = border_candidates(border ^ (1 << bit)) else {
+            continue;
+        };
+        for cand in c.iter() {
+            let filled = out.get(..n).unwrap_or(&[]);
+            match filled.iter().position(|o| o.config == cand.config) {
+                Some(i) => {
+                    if let Some(o) = out.get_mut(i) {
+                        o.log_prior = o.log_prior.max(cand.log_prior);
+                    }
+                }
+                None => {
+                    if let Some(o) = out.get_mut(n) {
+                        *o = cand;
+                        n += 1;
+                    } else if let Some(worst) = out.iter_mut().min_by_key(|o| o.log_prior) {
+                        // Full: keep the most likely.
+                        if cand.log_prior > worst.log_prior {
+                            *worst = cand;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    if n > 0 {
+        let filled = out.get_mut(..n).unwrap_or(&mut []);
+        filled.sort_unstable_by(|a, b| b.log_prior.cmp(&a.log_prior).then(a.config.cmp(&b.config)));
+        return (n, PriorSource::Nearby);
+    }
+    let c = unconditioned(out.len());
+    let n = c.iter().zip(out.iter_mut()).map(|(c, o)| *o = c).count();
+    (n, PriorSource::Fallback)
 }
 
 /// The `k` most likely 3×3 configurations without conditioning (`k = 0` is treated as 1), with
@@ -579,6 +634,70 @@ mod tests {
     }
 
     #[test]
+    fn candidates_into_backs_off_to_nearby_borders_symmetrically() {
+        use crate::patch::Dihedral;
+        let mut sources = [0usize; 3];
+        for border in 0..=u16::MAX {
+            let mut out = [Candidate {
+                config: 0,
+                log_prior: 0,
+            }; 16];
+            let (n, src) = candidates_into(border, &mut out);
+            assert!(n >= 1 && n <= 16, "border {border:#06x}");
+            let got = &out[..n];
+            assert!(got.windows(2).all(|w| w[0].log_prior >= w[1].log_prior));
+            match src {
+                PriorSource::Border => {
+                    sources[0] += 1;
+                    assert_eq!(got, &candidates(border, 16).iter().collect::<Vec<_>>()[..]);
+                }
+                PriorSource::Nearby => {
+                    sources[1] += 1;
+                    assert!(!border_seen(border));
+                    assert!((0..16).any(|b| border_seen(border ^ (1 << b))));
+                    if n < 16 {
+                        // Untruncated: the union is the same set after any rotation/flip.
+                        let t = Dihedral::ALL[3];
+                        let mut o2 = [Candidate {
+                            config: 0,
+                            log_prior: 0,
+                        }; 16];
+                        let (n2, s2) = candidates_into(t.border(border), &mut o2);
+                        assert_eq!((n2, s2), (n, PriorSource::Nearby));
+                        let mut a: Vec<(u16, i16)> = got
+                            .iter()
+                            .map(|c| (t.config(c.config), c.log_prior))
+                            .collect();
+                        let mut b: Vec<(u16, i16)> =
+                            o2[..n2].iter().map(|c| (c.config, c.log_prior)).collect();
+                        a.sort();
+                        b.sort();
+                        assert_eq!(a, b, "border {border:#06x}");
+                    }
+                }
+                PriorSource::Fallback => {
+                    sources[2] += 1;
+                    assert!((0..16).all(|b| !border_seen(border ^ (1 << b))));
+                }
+                PriorSource::Unconditioned => unreachable!(),
+            }
+        }
+        assert!(sources.iter().all(|&c| c > 0), "{sources:?}");
+        // Inside a solid region with one random hole in the border: fill it.
+        let mut out = [Candidate {
+            config: 0,
+            log_prior: 0,
+        }; 16];
+        let (n, src) = candidates_into(0xFFFF ^ (1 << 7), &mut out);
+        if src == PriorSource::Nearby {
+            assert_eq!(
+                out[..n].first().map(|c| c.config),
+                Some(crate::patch::CONFIG_OCCUPIED)
+            );
+        }
+    }
+
+    #[test]
     fn cell_prior_fallback_and_certainty() {
         let mut seen = 0;
         for n in 0..=255u8 {
@@ -594,7 +713,7 @@ mod tests {
                         )
                     );
                 }
-                PriorSource::Unconditioned => unreachable!(),
+                PriorSource::Unconditioned | PriorSource::Nearby => unreachable!(),
             }
             match p.certain() {
                 Some(true) => assert_eq!(p.log_odds(), LogOdds(i16::MAX)),

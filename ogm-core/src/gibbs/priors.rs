@@ -59,7 +59,8 @@ impl PatchPrior for ConstantCellPrior {
 }
 
 /// The data-driven L = 9 prior conditioned on the 16-cell border (the paper's "MCMC + border",
-/// the default): [`crate::prior::candidates`], with its documented fallback for unseen borders.
+/// the default): [`crate::prior::candidates_into`], with its documented back-off for unseen
+/// borders (nearby borders, then the unconditioned prior).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct BorderPrior;
 
@@ -71,7 +72,19 @@ impl PatchPrior for BorderPrior {
         2
     }
     fn candidates(&self, border: u16, out: &mut [PatchCandidate]) -> usize {
-        copy_candidates(crate::prior::candidates(border, out.len()), out)
+        let mut buf = [crate::prior::Candidate {
+            config: 0,
+            log_prior: 0,
+        }; super::MAX_CANDIDATES];
+        let k = out.len().min(buf.len());
+        let (n, _) = crate::prior::candidates_into(border, buf.get_mut(..k).unwrap_or(&mut []));
+        for (o, c) in out.iter_mut().zip(buf.iter().take(n)) {
+            *o = PatchCandidate {
+                config: c.config,
+                log_prior: i32::from(c.log_prior),
+            };
+        }
+        n.min(out.len())
     }
 }
 
