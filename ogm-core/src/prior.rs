@@ -643,7 +643,7 @@ mod tests {
                 log_prior: 0,
             }; 16];
             let (n, src) = candidates_into(border, &mut out);
-            assert!(n >= 1 && n <= 16, "border {border:#06x}");
+            assert!((1..=16).contains(&n), "border {border:#06x}");
             let got = &out[..n];
             assert!(got.windows(2).all(|w| w[0].log_prior >= w[1].log_prior));
             match src {
