@@ -98,7 +98,7 @@ impl Default for SamplingConfig {
             outlier_weight: 0.01,
             p_rand_patch: 0.001,
             tile_shift: 4,
-            visit_sweeps: 8,
+            visit_sweeps: 16,
             block_grid: 16,
             init_threshold: -1,
             bounds: Bounds::default(),

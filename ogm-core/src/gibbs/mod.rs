@@ -697,7 +697,7 @@ where
             .min(k);
         let cands = cands.get(..n).unwrap_or(&[]);
         let mut w = [0i32; MAX_CANDIDATES];
-        self.log_weights(store, centre, cands, &mut w);
+        self.log_weights(store, centre, cands, &mut w, &mut CrossingCache::new());
         let best = w.iter().take(n).copied().max().unwrap_or(0);
         let q: [u32; MAX_CANDIDATES] = core::array::from_fn(|j| {
             w.get(j)
@@ -751,6 +751,9 @@ where
         let centre = CellCoord { x: cx, y: cy };
         let size = i32::from(self.prior.size());
         let (current, border) = self.config_and_border(centre);
+        // Crossings computed for the likelihood are reused to update the ray caches if the patch
+        // changes (`None`: not computed, or more than fit).
+        let mut crossings = CrossingCache::new();
         let new = if self.rng.next_u32() < self.p_rand_u32 {
             self.stats.random_patches += 1;
             (self.rng.next_u32() & ((1u32 << (size * size)) - 1)) as u16
@@ -770,14 +773,14 @@ where
                 _ => {
                     let cands = cands.get(..n).unwrap_or(&[]);
                     let mut w = [0i32; MAX_CANDIDATES];
-                    self.log_weights(store, centre, cands, &mut w);
+                    self.log_weights(store, centre, cands, &mut w, &mut crossings);
                     self.draw(cands, w.get(..n).unwrap_or(&[]))
                 }
             }
         };
         if new != current {
             self.stats.changed += 1;
-            self.apply(store, centre, new);
+            self.apply(store, centre, new, &crossings);
         }
     }
 
@@ -823,6 +826,7 @@ where
         centre: CellCoord,
         cands: &[PatchCandidate],
         w: &mut [i32],
+        cache: &mut CrossingCache,
     ) where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
@@ -831,8 +835,10 @@ where
             *wi = c.log_prior;
         }
         let mut evaluated = 0u64;
+        cache.valid = true;
         let examined = self.for_each_crossing(store, centre, |lr, cross| {
             evaluated += 1;
+            cache.push(lr.index, cross);
             for (wi, c) in w.iter_mut().zip(cands) {
                 let f = cross.first_in_patch(c.config).unwrap_or(cross.f_after);
                 *wi = wi.saturating_add(self.log_lik(lr, f, cross.n));
@@ -855,9 +861,6 @@ where
     {
         let h = i32::from(self.prior.size()) / 2;
         let seg = &lr.seg;
-        if !seg.may_visit(centre, h) {
-            return None;
-        }
         let (first, last) = seg.major_range(centre, h)?;
         // A ray already blocked before the patch's first possible step cannot see the patch.
         let f = store
@@ -916,10 +919,10 @@ where
         if f == NONE {
             return self.forward.hit_clear();
         }
-        // (z − f) in 1/16 steps → 1/16 cells: × step (Q12) / 4096, rounded half away from zero.
-        let d = i64::from(lr.z_q4) - 16 * i64::from(f);
-        let q = (d * i64::from(k) + if d >= 0 { 2048 } else { -2048 }) / 4096;
-        self.forward.hit(q as i32)
+        // (z − f) in 1/16 steps → 1/16 cells: × step (Q12) / 4096, rounded to nearest (an
+        // arithmetic shift: |d| < 2^20 and k < 2^13, so the product fits an i32).
+        let d = i32::from(lr.z_q4) - 16 * i32::from(f);
+        self.forward.hit((d * k + 2048) >> 12)
     }
 
     /// Draws a candidate with probability ∝ exp(w).
@@ -941,35 +944,51 @@ where
         cands.first().map_or(0, |c| c.config)
     }
 
-    /// Writes `config` into the patch at `centre` and updates the caches of the rays crossing it.
-    fn apply<S, R>(&mut self, store: &mut RayStore<S, R>, centre: CellCoord, config: u16)
-    where
+    /// Writes `config` into the patch at `centre` and updates the caches of the rays crossing it
+    /// (from `cache` when the likelihood already computed every crossing).
+    fn apply<S, R>(
+        &mut self,
+        store: &mut RayStore<S, R>,
+        centre: CellCoord,
+        config: u16,
+        cache: &CrossingCache,
+    ) where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
         // First the rays (their crossings are computed against the old sample; a ray's update
         // only touches its own cache)…
         let h = i32::from(self.prior.size()) / 2;
-        let mask = self
-            .grid
-            .blocks_of_box(centre.x - h, centre.y - h, centre.x + h, centre.y + h);
-        let local = self.buf.local.as_ref();
-        for_each_ray(
-            self.buf.blocks.as_ref(),
-            self.block_row_words,
-            self.n_local,
-            mask,
-            |j| {
-                let Some(lr) = local.get(j) else { return };
-                let Some(cross) = self.crossing(store, lr, centre) else {
-                    return;
-                };
+        if let Some(cached) = cache.get() {
+            let rays = store.rays_mut();
+            for (index, cross) in cached {
                 let f = cross.first_in_patch(config).unwrap_or(cross.f_after);
-                if let Some(r) = store.rays_mut().get_mut(lr.index as usize) {
+                if let Some(r) = rays.get_mut(*index as usize) {
                     r.first_occupied = f;
                 }
-            },
-        );
+            }
+        } else {
+            let blocks =
+                self.grid
+                    .blocks_of_box(centre.x - h, centre.y - h, centre.x + h, centre.y + h);
+            let local = self.buf.local.as_ref();
+            for_each_ray(
+                self.buf.blocks.as_ref(),
+                self.block_row_words,
+                self.n_local,
+                blocks,
+                |j| {
+                    let Some(lr) = local.get(j) else { return };
+                    let Some(cross) = self.crossing(store, lr, centre) else {
+                        return;
+                    };
+                    let f = cross.first_in_patch(config).unwrap_or(cross.f_after);
+                    if let Some(r) = store.rays_mut().get_mut(lr.index as usize) {
+                        r.first_occupied = f;
+                    }
+                },
+            );
+        }
         // …then the cells.
         let size = 2 * h + 1;
         for py in 0..size {
@@ -1021,6 +1040,51 @@ where
             self.in_sweep = 0;
             self.cursor = 0;
             self.stats.sweeps = self.stats.sweeps.saturating_add(1);
+        }
+    }
+}
+
+/// Crossings the likelihood computed for one patch, reused by the cache update.
+struct CrossingCache {
+    items: [(u32, Crossing); CrossingCache::CAP],
+    n: usize,
+    /// Every crossing of the patch is in `items`.
+    valid: bool,
+}
+
+impl CrossingCache {
+    /// Enough for a well-observed patch; more crossings fall back to recomputation.
+    const CAP: usize = 48;
+
+    fn new() -> Self {
+        let none = Crossing {
+            cells: [(0, 0); 3],
+            n_cells: 0,
+            f_after: NONE,
+            n: 0,
+        };
+        CrossingCache {
+            items: [(0, none); Self::CAP],
+            n: 0,
+            valid: false,
+        }
+    }
+
+    fn push(&mut self, index: u32, cross: &Crossing) {
+        match self.items.get_mut(self.n) {
+            Some(slot) => {
+                *slot = (index, *cross);
+                self.n += 1;
+            }
+            None => self.valid = false,
+        }
+    }
+
+    fn get(&self) -> Option<&[(u32, Crossing)]> {
+        if self.valid {
+            self.items.get(..self.n)
+        } else {
+            None
         }
     }
 }

@@ -81,33 +81,6 @@ impl Segment {
         u32::from(self.n)
     }
 
-    /// Cheap necessary condition for the ray to visit a cell of the (2h+1)² box around `c`.
-    /// Bresenham cells lie within ½ cell of the ideal line per axis, so the line of a visiting
-    /// ray passes within (h + ½)·√2 + ½ < h + 2 cells of `c`, and `c` lies within h + 2 cells
-    /// of the segment's extent. All products fit an `i64` (coordinates relative to the start are
-    /// bounded by the caller's box, steps by [`MAX_STEPS`]).
-    #[inline]
-    pub(crate) fn may_visit(&self, c: CellCoord, h: i32) -> bool {
-        let (n, a) = (i64::from(self.n), i64::from(self.a));
-        let (vx, vy) = if self.x_major { (n, a) } else { (a, n) };
-        let (vx, vy) = (vx * i64::from(self.sx), vy * i64::from(self.sy));
-        let (wx, wy) = (
-            i64::from(c.x) - i64::from(self.start.x),
-            i64::from(c.y) - i64::from(self.start.y),
-        );
-        let len2 = vx * vx + vy * vy;
-        let r2 = (i64::from(h) + 2) * (i64::from(h) + 2);
-        let cross = vx * wy - vy * wx;
-        if cross * cross > r2 * len2 {
-            return false;
-        }
-        let dot = vx * wx + vy * wy;
-        // −r·|v| ≤ dot ≤ |v|² + r·|v|, squared to stay in integers.
-        let before = dot < 0 && dot * dot > r2 * len2;
-        let after = dot > len2 && (dot - len2) * (dot - len2) > r2 * len2;
-        !before && !after
-    }
-
     /// Length of one step in cells, Q12 (4096 = 1, up to √2 = 5793): √(1 + (a/n)²) from a
     /// 257-entry table indexed by a/n in Q8, interpolated (error < 2·10⁻⁵).
     #[inline]
@@ -292,13 +265,6 @@ mod tests {
                 let len = (f64::from(x1 - x0).powi(2) + f64::from(y1 - y0).powi(2)).sqrt();
                 let want = len / f64::from(seg.n()) * 4096.0;
                 prop_assert!((f64::from(seg.step_q12()) - want).abs() <= 1.0, "{} vs {}", seg.step_q12(), want);
-            }
-            for i in 0..=seg.n() {
-                let c = seg.cell_at(i);
-                for (dx, dy) in [(0, 0), (1, 0), (0, 1), (-1, -1), (1, -1)] {
-                    let centre = CellCoord { x: c.x + dx, y: c.y + dy };
-                    prop_assert!(seg.may_visit(centre, 1), "{:?} {:?}", seg, centre);
-                }
             }
             let mut walked = Vec::new();
             seg.walk(0, seg.n(), |i, c| { walked.push((i, c)); true });
