@@ -67,8 +67,10 @@ where
 /// Integrates a scan into the online map *and* an online sampler: inserts it into `mapper`, seeds
 /// every cell this scan observes for the first time (log-odds was exactly 0) in the sampler's
 /// current sample from its new log-odds (occupied iff above the sampler's `init_threshold`),
-/// stores the scan's rays, and refreshes the first-occupied caches — of every ray if a cell was
-/// seeded, else of the new rays only. Returns the mapper's statistics and the new rays' range.
+/// stores the scan's rays, and marks first-occupied caches stale — of every ray if a cell was
+/// seeded, else of the new rays only (they are recomputed lazily, inside the sampler's bounded
+/// steps, when a tile visit gathers them). Returns the mapper's statistics and the new rays'
+/// range.
 ///
 /// Without seeding, newly observed space would start as whatever the sample said about the
 /// unknown (the border prior rarely flips a consistent all-free region, so walls seen later would
@@ -102,7 +104,7 @@ where
         }
     })?;
     let new = store.add_scan(pose, beams);
-    let refresh = if seeded { 0..usize::MAX } else { new.clone() };
-    gibbs.refresh_rays(store, refresh);
+    let stale = if seeded { 0..usize::MAX } else { new.clone() };
+    gibbs.invalidate_rays(store, stale);
     Ok((stats, new))
 }

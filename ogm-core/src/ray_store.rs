@@ -25,6 +25,11 @@ use crate::Angle;
 /// [`StoredRay::first_occupied`].
 pub const NONE: u16 = u16::MAX;
 
+/// [`StoredRay::first_occupied`] not known (a new ray, or the sample changed under it): the
+/// sampler recomputes it when it next gathers the ray. Steps never reach this value
+/// (rays are at most [`crate::gibbs::MAX_STEPS`] long).
+pub const STALE: u16 = u16::MAX - 1;
+
 /// A scan in the store.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -45,7 +50,8 @@ pub struct StoredRay {
     pub angle: Angle,
     /// Measured range as a step index along the ray, in 1/16 steps; [`NONE`] = no return.
     pub z_q4: u16,
-    /// Cache: first occupied step in the sampler's current map, [`NONE`] if none.
+    /// Cache: first occupied step in the sampler's current map, [`NONE`] if none, [`STALE`] if
+    /// not known yet.
     pub first_occupied: u16,
 }
 
@@ -230,7 +236,7 @@ where
 
     /// Adds a scan's beams (every `decimation`-th), thinning first if the store is full.
     /// Returns the index range of the new rays in [`RayStore::rays`] — their `first_occupied`
-    /// caches are [`NONE`] until the sampler fills them in.
+    /// caches are [`STALE`] until the sampler fills them in.
     pub fn add_scan(&mut self, pose: &Pose, beams: &[Beam]) -> core::ops::Range<usize> {
         loop {
             if self.n_scans >= self.scans.as_ref().len() {
@@ -276,7 +282,7 @@ where
             *slot = StoredRay {
                 angle: beam.angle,
                 z_q4,
-                first_occupied: NONE,
+                first_occupied: STALE,
             };
             self.n_rays += 1;
             self.stats.rays_added = self.stats.rays_added.saturating_add(1);

@@ -49,7 +49,7 @@ use crate::error::{Error, Result};
 use crate::fixed::LogOdds;
 use crate::forward_model::{ForwardModel, LogLik};
 use crate::geometry::{CellCoord, GridGeometry};
-use crate::ray_store::{RayStore, StoredRay, StoredScan, NONE};
+use crate::ray_store::{RayStore, StoredRay, StoredScan, NONE, STALE};
 use crate::Angle;
 pub use local::{block_words, LocalRay, MAX_BLOCK_GRID};
 use local::{for_each_ray, set_bit, BlockGrid};
@@ -498,6 +498,28 @@ where
         }
     }
 
+    /// Marks the first-occupied caches of the rays in `range` stale, to be recomputed from the
+    /// current sample when a tile visit next gathers them, and ends the current visit. O(rays)
+    /// writes and no ray walks: what [`crate::pipeline::insert_and_seed`] does after seeding, so
+    /// a scan's ingest stays cheap and the walks happen inside the sampler's bounded steps.
+    pub fn invalidate_rays<S, R>(
+        &mut self,
+        store: &mut RayStore<S, R>,
+        range: core::ops::Range<usize>,
+    ) where
+        S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
+        R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
+    {
+        self.visit_left = 0;
+        let rays = store.rays_mut();
+        let (a, b) = (range.start.min(rays.len()), range.end.min(rays.len()));
+        if let Some(rs) = rays.get_mut(a..b) {
+            for r in rs {
+                r.first_occupied = STALE;
+            }
+        }
+    }
+
     /// First occupied in-grid step of `seg` at or after step `from`, or [`NONE`].
     fn first_occupied_from(&self, seg: &Segment, from: u32) -> u16 {
         let (w, h) = (
@@ -549,7 +571,7 @@ where
     }
 
     /// Picks a random tile and gathers the rays its patches can meet.
-    fn start_visit<S, R>(&mut self, store: &RayStore<S, R>)
+    fn start_visit<S, R>(&mut self, store: &mut RayStore<S, R>)
     where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
@@ -576,7 +598,7 @@ where
     }
 
     /// Collects the rays visiting the box of `grid` into the local list and block bitsets.
-    fn gather<S, R>(&mut self, store: &RayStore<S, R>, grid: BlockGrid)
+    fn gather<S, R>(&mut self, store: &mut RayStore<S, R>, grid: BlockGrid)
     where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
@@ -659,6 +681,22 @@ where
             }
         }
         self.stats.rays_gathered += self.n_local as u64;
+        // Rays added or invalidated since they were last used get their first occupied cell
+        // now, from the current sample (see `invalidate_rays`).
+        let local = self.buf.local.as_ref();
+        for lr in local.iter().take(self.n_local) {
+            if store
+                .rays()
+                .get(lr.index as usize)
+                .map(|r| r.first_occupied)
+                == Some(STALE)
+            {
+                let f = self.first_occupied_from(&lr.seg, 0);
+                if let Some(r) = store.rays_mut().get_mut(lr.index as usize) {
+                    r.first_occupied = f;
+                }
+            }
+        }
     }
 
     /// The conditional of Eq. 1 for the patch centred at `centre` as the sampler computes it
@@ -666,7 +704,7 @@ where
     /// Diagnostic and test API; it ends the current tile visit.
     pub fn conditional<S, R>(
         &mut self,
-        store: &RayStore<S, R>,
+        store: &mut RayStore<S, R>,
         centre: CellCoord,
         out: &mut [(u16, f64)],
     ) -> usize
