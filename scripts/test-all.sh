@@ -9,6 +9,8 @@
 #   4. the host workspace tests, including the firmware-in-QEMU integration tests
 #      (OGM_REQUIRE_FIRMWARE=1: they fail instead of skipping if QEMU or the toolchain is missing)
 #   5. the firmware's on-target self test in QEMU
+#   6. every fuzz target for a few seconds (scripts/fuzz.sh --ci: nightly + cargo-fuzz, installed
+#      into ~/.cache/ogm/tools if missing; skipped with a message when there is no nightly)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -20,7 +22,7 @@ bash scripts/firmware-toolchain.sh
 
 step "cargo fmt --check"
 cargo fmt --all -- --check
-rustfmt --edition 2021 --check firmware/build.rs firmware/src/main.rs
+rustfmt --edition 2021 --check firmware/build.rs firmware/src/main.rs fuzz/fuzz_targets/*.rs
 
 step "cargo clippy --workspace --all-targets -- -D warnings"
 cargo clippy --workspace --all-targets -- -D warnings
@@ -35,6 +37,9 @@ OGM_REQUIRE_FIRMWARE=1 cargo test --workspace
 step "firmware: clippy (rustup toolchain only) and the on-target run in QEMU"
 bash scripts/firmware.sh clippy
 bash scripts/firmware.sh run
+
+step "fuzz targets, 5 s each (scripts/fuzz.sh --ci)"
+bash scripts/fuzz.sh --ci
 
 echo
 echo "All tests passed in $((SECONDS - t0)) s."

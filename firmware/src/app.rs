@@ -2,9 +2,10 @@
 //! [`Timer`] and [`board::stack_usage`]).
 //!
 //! Main loop ([`run`]): receive bytes on the link → [`LinkRx`] (LD06 packets + host frames →
-//! scans with poses) → for each scan: log-odds update → add its rays to the ray store → sampler
-//! steps for the rest of the scan period (bounded, see [`Budget`]) → report the scan, stream
-//! changed tiles. `Finish` from the host: stream everything still unsent, statistics, `Done`.
+//! scans with poses) → for each scan: log-odds update, seeding the cells it observed for the
+//! first time into the sampler's sample, its rays into the ray store, first-occupied caches
+//! refreshed (`ogm_core::pipeline::insert_and_seed`) → sampler steps for the rest of the scan
+//! period (bounded, see [`Budget`]) → report the scan, stream changed tiles. `Finish` from the host: stream everything still unsent, statistics, `Done`.
 //!
 //! Determinism: nothing here depends on timing except the *number* of sampler updates under a
 //! time budget, and that number goes into the stream ([`ScanReport::sampler_updates`]); the host
@@ -15,6 +16,7 @@ use defmt::{error, info, warn};
 use embedded_io::{Read, ReadReady, Write};
 use ogm_core::gibbs::{BorderPrior, Buffers as SamplerBuffers, Gibbs, LocalRay};
 use ogm_core::link::{LinkError, LinkRx, Step};
+use ogm_core::pipeline::insert_and_seed;
 use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
 use ogm_core::wire::firmware_sizes as sz;
 use ogm_core::wire::{
@@ -125,7 +127,6 @@ struct Totals {
     beams: u64,
     cells: u64,
     insert_ticks: u64,
-    store_ticks: u64,
     sampler_ticks: u64,
     updates: u64,
     max_insert_ticks: u32,
@@ -214,9 +215,13 @@ impl App {
         self.send(link, &DeviceMsg::Hello(hello));
     }
 
-    /// Applies the host's settings (once).
+    /// Applies the host's settings (once; a repeat of the settings in use is ignored — the host
+    /// repeats its frames on a noisy link).
     pub fn configure<W: Write>(&mut self, link: &mut W, config: RunConfig) {
         let Some(bufs) = self.spare.take() else {
+            if self.machine.as_ref().is_some_and(|m| m.config == config) {
+                return;
+            }
             self.report_error(link, ErrorCode::ConfigTwice, 0);
             return;
         };
@@ -275,7 +280,7 @@ impl App {
         self.report_error(link, ErrorCode::Uart, 0);
     }
 
-    /// Ingests one scan: log-odds update, ray store, sampler, report, tiles.
+    /// Ingests one scan: log-odds update with seeding, ray store, sampler, report, tiles.
     pub fn process_scan<W: Write>(
         &mut self,
         link: &mut W,
@@ -302,24 +307,22 @@ impl App {
             ..ScanReport::default()
         };
         let t0 = timer.now();
-        let inserted = m.mapper.insert_scan(pose, beams);
+        // Log-odds update, seeding of the cells observed for the first time, ray store and
+        // first-occupied refresh in one step (the host replay makes the same call).
+        let inserted = insert_and_seed(&mut m.mapper, &mut m.store, &mut m.gibbs, pose, beams);
         let t1 = timer.now();
-        let range = m.store.add_scan(pose, beams);
-        report.rays_stored = range.len() as u32;
-        m.gibbs.refresh_rays(&mut m.store, range);
-        let t2 = timer.now();
         let updates = run_budget(m, timer, t0);
-        let t3 = timer.now();
-        (
-            report.insert_ticks,
-            report.store_ticks,
-            report.sampler_ticks,
-        ) = (ticks(t0, t1), ticks(t1, t2), ticks(t2, t3));
+        let t2 = timer.now();
+        // `store_ticks` stays 0: the ray store and the cache refresh are inside `insert_ticks`.
+        (report.insert_ticks, report.sampler_ticks) = (ticks(t0, t1), ticks(t1, t2));
         report.sampler_updates = updates;
         let geometry = m.geometry();
         let mapper_config = *m.mapper.config();
         match inserted {
-            Ok(stats) => report.set_scan_stats(&stats),
+            Ok((stats, range)) => {
+                report.set_scan_stats(&stats);
+                report.rays_stored = range.len() as u32;
+            }
             Err(e) => {
                 error!("scan {=u32}: mapper: {}", seq, e);
                 self.report_error(link, ErrorCode::Map, 0);
@@ -333,17 +336,15 @@ impl App {
         t.cells += u64::from(report.cells_hit + report.cells_freed);
         t.insert_ticks += u64::from(report.insert_ticks);
         t.max_insert_ticks = t.max_insert_ticks.max(report.insert_ticks);
-        t.store_ticks += u64::from(report.store_ticks);
         t.sampler_ticks += u64::from(report.sampler_ticks);
         t.updates += u64::from(updates);
         info!(
-            "scan {=u32}: {=u32} beams, {=u32} cells in {=u32} ticks; {=u32} rays stored in {=u32} ticks; {=u32} sampler updates in {=u32} ticks",
+            "scan {=u32}: {=u32} beams, {=u32} cells, {=u32} rays stored in {=u32} ticks; {=u32} sampler updates in {=u32} ticks",
             seq,
             report.beams,
             report.cells_hit + report.cells_freed,
-            report.insert_ticks,
             report.rays_stored,
-            report.store_ticks,
+            report.insert_ticks,
             updates,
             report.sampler_ticks
         );
@@ -470,7 +471,7 @@ impl App {
         );
         // Under `qemu -icount shift=0` 1 ns = 1 instruction (docs/firmware.md).
         info!(
-            "insert: {=u64} ns/scan (max {=u64}), {=u64} beams/scan, {=u64} cells/scan, {=u64} ps per cell update",
+            "insert+seed+store+refresh: {=u64} ns/scan (max {=u64}), {=u64} beams/scan, {=u64} cells/scan, {=u64} ps per updated cell",
             ns(t.insert_ticks) / n,
             ns(u64::from(t.max_insert_ticks)),
             t.beams / n,
@@ -478,8 +479,7 @@ impl App {
             ns(t.insert_ticks) * 1000 / t.cells.max(1)
         );
         info!(
-            "store+refresh: {=u64} ns/scan; sampler: {=u64} updates, {=u64} ps per patch update",
-            ns(t.store_ticks) / n,
+            "sampler: {=u64} updates, {=u64} ps per patch update",
             t.updates,
             ns(t.sampler_ticks) * 1000 / t.updates.max(1)
         );

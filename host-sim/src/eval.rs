@@ -303,6 +303,7 @@ pub fn run_sim(maps: &[PathBuf], out: &Path, cfg: &EvalConfig) -> anyhow::Result
             for &b in &cfg.baselines {
                 bar.set_message(format!("{name} run {}: {}", i + 1, b.name()));
                 let o = crate::baselines::run_on_graph(b, &graph, &run.map, &cfg.baseline, s)?;
+                energies.add_run(&name, b.name(), &o);
                 *seconds.entry(b.name().into()).or_default() += o.seconds;
                 traces.push((b.name().to_string(), o.trace));
                 m.insert(b.name().into(), o.probs);
@@ -352,10 +353,19 @@ pub fn run_sim(maps: &[PathBuf], out: &Path, cfg: &EvalConfig) -> anyhow::Result
         });
     }
     bar.finish();
-    anyhow::ensure!(
-        !infos.is_empty(),
-        "no map could be loaded (see the messages above)"
-    );
+    if infos.is_empty() {
+        // One line naming the file and the problem (the progress bar's messages are not shown
+        // when stderr is not a terminal).
+        let first = skipped
+            .first()
+            .and_then(|s| s["error"].as_str())
+            .unwrap_or("no map files")
+            .to_string();
+        match skipped.len() {
+            0 | 1 => bail!("no map could be loaded: {first}"),
+            n => bail!("no map could be loaded: {first} (and {} more)", n - 1),
+        }
+    }
     let curves: Vec<(String, Vec<crate::metrics::PrPoint>)> = pooled
         .all
         .iter()

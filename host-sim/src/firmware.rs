@@ -33,6 +33,7 @@ use ogm_core::gibbs::{
 };
 use ogm_core::link::{LinkRx, Step};
 use ogm_core::mapper::marks_len;
+use ogm_core::pipeline::insert_and_seed;
 use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
 use ogm_core::wire::{
     firmware_sizes as fw, Budget, Counters, Done, Layer, RunConfig, SamplerReport, ScanReport,
@@ -41,7 +42,10 @@ use ogm_core::wire::{
 use ogm_core::{LogOdds, LogOddsGrid, Mapper, ScanBuf};
 use serde::Serialize;
 
-use crate::link::{encode_run, DeviceEvent, HelloInfo, OwnedTile, StreamDecoder, StreamedMap};
+use crate::link::{
+    encode_run_with, DeviceEvent, HelloInfo, OwnedTile, RunInput, StreamDecoder, StreamedMap, Unit,
+    UnitKind,
+};
 use crate::metrics::Summary;
 use crate::sim::{simulate, SimConfig};
 use crate::world::{generate, load_world, GenParams, World};
@@ -81,6 +85,18 @@ pub struct FirmwareArgs {
     /// Mix garbage into the input (the firmware must skip it; the comparison still holds).
     #[arg(long)]
     pub garbage: bool,
+    /// Corrupt this many of every million input bytes (XOR with a random non-zero byte, seeded
+    /// by `--seed`): a noisy UART. The map must then also equal a host replay of only the
+    /// packets and frames that arrived intact (10000 = 1 %).
+    #[arg(long, default_value_t = 0)]
+    pub noise_ppm: u32,
+    /// Send every host frame this many times in a row (exact repeats are ignored by the robot;
+    /// on a noisy link a frame is then lost only if every copy is damaged).
+    #[arg(long, default_value_t = 1)]
+    pub repeat_frames: usize,
+    /// Soak: send this many scans, cycling through the simulated run's scans.
+    #[arg(long)]
+    pub soak_scans: Option<usize>,
     /// QEMU timeout, seconds.
     #[arg(long, default_value_t = 300)]
     pub timeout: u64,
@@ -119,6 +135,9 @@ impl Default for FirmwareArgs {
             tiles_per_scan: 8,
             count_tiles_per_scan: 8,
             garbage: false,
+            noise_ppm: 0,
+            repeat_frames: 1,
+            soak_scans: None,
             timeout: 300,
             accuracy: false,
             host_only: false,
@@ -139,13 +158,15 @@ pub struct Figures {
     pub beams_per_scan: f64,
     /// Mean cells updated per scan.
     pub cells_per_scan: f64,
-    /// Log-odds update: instructions per scan (mean).
+    /// `insert_and_seed` (log-odds update, seeding, ray store, first-occupied refresh):
+    /// instructions per scan (mean).
     pub insert_per_scan: f64,
     /// … the largest.
     pub insert_per_scan_max: u64,
     /// … per updated cell.
     pub insert_per_cell: f64,
-    /// Ray store add + first-occupied refresh, per scan.
+    /// Ray store add + first-occupied refresh, per scan, when the firmware times it separately
+    /// (older firmware; 0 since both are part of `insert_and_seed`, i.e. of `insert_per_scan`).
     pub store_per_scan: f64,
     /// Sampler patch updates in total.
     pub sampler_updates: u64,
@@ -204,6 +225,36 @@ pub struct FirmwareReport {
     pub accuracy: Option<Accuracy>,
     /// Where QEMU's log went.
     pub log: Option<PathBuf>,
+    /// `Hello` messages received (1 = the firmware never reset).
+    pub hellos: usize,
+    /// What `--noise-ppm` did to the input.
+    pub noise: Option<NoiseReport>,
+}
+
+/// `--noise-ppm`: the damage done to the robot's input.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct NoiseReport {
+    /// Bytes corrupted.
+    pub corrupted_bytes: usize,
+    /// LD06 packets sent / of which damaged (at least one corrupted byte).
+    pub packets: usize,
+    /// …
+    pub damaged_packets: usize,
+    /// Host frames sent (repeats included) / of which damaged.
+    pub frames: usize,
+    /// …
+    pub damaged_frames: usize,
+    /// Intact packets and frames before the first intact `Finish` (what the firmware can have
+    /// accepted before it stopped reading).
+    pub intact_packets_before_finish: usize,
+    /// …
+    pub intact_frames_before_finish: usize,
+    /// Points of damaged packets inside scans whose framing arrived (the ones the firmware must
+    /// report lost).
+    pub points_in_damaged_packets: u64,
+    /// Whether a host replay of only the intact packets and frames gives the firmware's final
+    /// map (log-odds, marginal counts, sample), cell for cell.
+    pub surviving_replay_identical: bool,
 }
 
 impl FirmwareReport {
@@ -253,12 +304,15 @@ pub const FIRMWARE_SIZES: Sizes = Sizes {
     local: fw::LOCAL_RAYS,
 };
 
+/// The sampler of a replay.
+pub type ReplayGibbs<N> = Gibbs<BorderPrior, Vec<u32>, Vec<N>, Vec<LocalRay>, Vec<u32>, N>;
+
 /// The mapping state of a replay: what the firmware's `app::Machine` holds, in `Vec`s.
 pub struct Replay<N: Count> {
     config: RunConfig,
     mapper: Mapper<Vec<LogOdds>, Vec<u32>>,
     store: RayStore<Vec<StoredScan>, Vec<StoredRay>>,
-    gibbs: Gibbs<BorderPrior, Vec<u32>, Vec<N>, Vec<LocalRay>, Vec<u32>, N>,
+    gibbs: ReplayGibbs<N>,
 }
 
 impl<N: Count> Replay<N> {
@@ -329,14 +383,18 @@ impl<N: Count> Replay<N> {
             sampler_updates: updates,
             ..ScanReport::default()
         };
-        let inserted = self.mapper.insert_scan(pose, beams);
-        let range = self.store.add_scan(pose, beams);
-        r.rays_stored = range.len() as u32;
-        self.gibbs.refresh_rays(&mut self.store, range);
+        let inserted = insert_and_seed(
+            &mut self.mapper,
+            &mut self.store,
+            &mut self.gibbs,
+            pose,
+            beams,
+        );
         self.gibbs.step(&mut self.store, updates);
         let ok = match inserted {
-            Ok(s) => {
+            Ok((s, range)) => {
                 r.set_scan_stats(&s);
+                r.rays_stored = range.len() as u32;
                 true
             }
             Err(_) => false,
@@ -396,6 +454,21 @@ impl<N: Count> Replay<N> {
     /// The settings.
     pub fn config(&self) -> &RunConfig {
         &self.config
+    }
+
+    /// The log-odds map.
+    pub fn log_odds(&self) -> &[LogOdds] {
+        self.mapper.grid().cells()
+    }
+
+    /// The sampler.
+    pub fn gibbs(&self) -> &ReplayGibbs<N> {
+        &self.gibbs
+    }
+
+    /// The ray store.
+    pub fn store(&self) -> &RayStore<Vec<StoredScan>, Vec<StoredRay>> {
+        &self.store
     }
 }
 
@@ -520,7 +593,10 @@ fn replay<N: Count>(
         rx.feed(std::slice::from_ref(&b), &mut scan, |step| match step {
             Step::Config(c) => {
                 if configured {
-                    counters.errors += 1; // ConfigTwice
+                    // A repeat of the settings in use is ignored (the firmware's `configure`).
+                    if !machine.as_ref().is_some_and(|m| m.config == c) {
+                        counters.errors += 1; // ConfigTwice
+                    }
                     return;
                 }
                 configured = true;
@@ -912,6 +988,155 @@ fn run_qemu(
     Ok((out, status, secs))
 }
 
+/// Checks that `path` is an ELF executable (one-line errors naming the file).
+pub fn check_elf(path: &Path) -> anyhow::Result<()> {
+    let bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            bail!("{}: file not found", path.display())
+        }
+        Err(e) => bail!("{}: cannot read: {e}", path.display()),
+    };
+    ensure!(!bytes.is_empty(), "{}: file is empty", path.display());
+    ensure!(
+        bytes.starts_with(b"\x7fELF"),
+        "{}: wrong format: not an ELF file",
+        path.display()
+    );
+    // 32-bit ELF header: 52 bytes; the program headers it points to must be in the file too.
+    let u32_at = |o: usize| {
+        bytes
+            .get(o..o + 4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let u16_at = |o: usize| {
+        bytes
+            .get(o..o + 2)
+            .map(|b| u16::from_le_bytes([b[0], b[1]]))
+    };
+    let ph_end = match (u32_at(28), u16_at(42), u16_at(44)) {
+        (Some(off), Some(size), Some(n)) => off as usize + usize::from(size) * usize::from(n),
+        _ => usize::MAX,
+    };
+    ensure!(
+        bytes.len() >= 52 && bytes.len() >= ph_end,
+        "{}: truncated ELF file ({} bytes)",
+        path.display(),
+        bytes.len()
+    );
+    Ok(())
+}
+
+/// Corrupts `ppm` of every million bytes of `bytes` (distinct positions, each XORed with a
+/// random non-zero byte; seeded); returns the positions in ascending order.
+pub fn corrupt(bytes: &mut [u8], ppm: u32, seed: u64) -> Vec<usize> {
+    use rand::{RngExt, SeedableRng};
+    let n = (bytes.len() as u64 * u64::from(ppm)).div_ceil(1_000_000) as usize;
+    let n = n.min(bytes.len());
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed ^ 0x006e_6f69_7379);
+    let mut positions = std::collections::BTreeSet::new();
+    while positions.len() < n {
+        positions.insert(rng.random_range(0..bytes.len()));
+    }
+    for &p in &positions {
+        bytes[p] ^= rng.random_range(1..=255u8);
+    }
+    positions.into_iter().collect()
+}
+
+/// The streamed map: every tile the firmware sent, applied in order.
+fn streamed_map(g: &Groups) -> anyhow::Result<StreamedMap> {
+    let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
+    let mut m = StreamedMap::new(w, h, usize::from(fw::TILE_EDGE));
+    for t in &g.all_tiles {
+        m.apply(t)?;
+    }
+    Ok(m)
+}
+
+/// `--noise-ppm`: which packets and frames were damaged, and whether a host replay of only the
+/// intact ones (in order; garbage dropped) gives the firmware's final map.
+fn noise_report(input: &RunInput, corrupted: &[usize], g: &Groups) -> anyhow::Result<NoiseReport> {
+    let mut n = NoiseReport {
+        corrupted_bytes: corrupted.len(),
+        ..NoiseReport::default()
+    };
+    let damaged = |u: &Unit| {
+        let i = corrupted.partition_point(|&p| p < u.start);
+        corrupted.get(i).is_some_and(|&p| p < u.start + u.len)
+    };
+    let mut surviving = Vec::new();
+    let mut finished = false;
+    // Per scan: its intact-framing state and damaged packets.
+    let (mut in_scan, mut scan_damaged) = (false, 0u64);
+    for u in &input.units {
+        let bad = damaged(u);
+        let bytes = &input.bytes[u.start..u.start + u.len];
+        match u.kind {
+            UnitKind::Garbage => continue,
+            UnitKind::Packet => {
+                n.packets += 1;
+                if bad {
+                    n.damaged_packets += 1;
+                    scan_damaged += ogm_core::ld06::POINTS as u64;
+                } else if !finished {
+                    n.intact_packets_before_finish += 1;
+                }
+            }
+            UnitKind::Frame => {
+                n.frames += 1;
+                if bad {
+                    n.damaged_frames += 1;
+                } else {
+                    let mut body = bytes[1..bytes.len() - 1].to_vec();
+                    match ogm_core::wire::decode::<ogm_core::wire::HostMsg>(&mut body) {
+                        Ok(ogm_core::wire::HostMsg::ScanStart { .. }) => {
+                            in_scan = true;
+                            scan_damaged = 0;
+                        }
+                        Ok(ogm_core::wire::HostMsg::ScanEnd { .. }) if in_scan => {
+                            n.points_in_damaged_packets += scan_damaged;
+                            in_scan = false;
+                        }
+                        Ok(ogm_core::wire::HostMsg::Finish) => {
+                            if !finished {
+                                n.intact_frames_before_finish += 1;
+                            }
+                            finished = true;
+                        }
+                        _ => {}
+                    }
+                    if !finished {
+                        n.intact_frames_before_finish += 1;
+                    }
+                }
+            }
+        }
+        if !bad {
+            surviving.extend_from_slice(bytes);
+        }
+    }
+    let (machine, _) = replay::<u8>(
+        &surviving,
+        FIRMWARE_SIZES,
+        |seq| g.scans.get(&seq).map(|s| s.report.sampler_updates),
+        |_| {},
+    )?;
+    let m = machine.context("the surviving packets carry no valid Config")?;
+    let streamed = streamed_map(g)?;
+    let cells = streamed.log_odds.len();
+    n.surviving_replay_identical = m
+        .mapper
+        .grid()
+        .cells()
+        .iter()
+        .map(|l| l.raw())
+        .eq(streamed.log_odds.iter().copied())
+        && (0..cells).all(|i| m.gibbs.count(i) as u8 == streamed.counts[i])
+        && (0..cells).all(|i| m.gibbs.occupied(i) == streamed.sample[i]);
+    Ok(n)
+}
+
 fn rand_seed() -> u64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -980,8 +1205,16 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     if let Some(n) = args.max_scans {
         scans.truncate(n);
     }
+    if let Some(n) = args.soak_scans {
+        ensure!(
+            !scans.is_empty(),
+            "the simulated run has no scans to soak with"
+        );
+        scans = scans.iter().cycle().take(n).cloned().collect();
+    }
     let config = run_config(&world, args, sim.mapper_config.max_range_mm);
-    let input = encode_run(&config, &scans, args.garbage)?;
+    let mut input = encode_run_with(&config, &scans, args.garbage, args.repeat_frames)?;
+    let corrupted = corrupt(&mut input.bytes, args.noise_ppm, args.seed);
     let mut report = FirmwareReport {
         config: Some(config),
         scans_sent: input.scans,
@@ -1023,6 +1256,10 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
             report.stream_bad_frames,
         ) = (ds.bytes, ds.frames, ds.bad_frames);
         let groups = Groups::of(&events);
+        report.hellos = events
+            .iter()
+            .filter(|e| matches!(e, DeviceEvent::Hello(_)))
+            .count();
         report.hello = groups.hello.clone();
         report.tiles = groups.all_tiles.len() as u64;
         report.device_errors = groups.errors;
@@ -1041,6 +1278,20 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         match compare(&input.bytes, &groups, &mut checker) {
             Ok(()) => {}
             Err(e) => checker.fail(format!("{e:#}")),
+        }
+        if args.noise_ppm > 0 {
+            match noise_report(&input, &corrupted, &groups) {
+                Ok(n) => {
+                    if !n.surviving_replay_identical {
+                        checker.fail(
+                            "a replay of only the intact packets and frames gives another map"
+                                .into(),
+                        );
+                    }
+                    report.noise = Some(n);
+                }
+                Err(e) => checker.fail(format!("surviving-packets replay: {e:#}")),
+            }
         }
         if let Some(h) = &groups.hello {
             report.figures = figures(&groups, h);
@@ -1082,7 +1333,7 @@ fn accuracy(
 ) -> anyhow::Result<Accuracy> {
     use crate::eval::NEAR_MAPPED_CELLS;
     use crate::metrics::{mask_within, PrAccumulator};
-    use crate::sampling::{run_sampler, Bounds, SamplingConfig, Variant};
+    use crate::sampling::{run_sampler, SamplingConfig, Variant};
 
     let mut all: BTreeMap<String, PrAccumulator> = BTreeMap::new();
     let mut near: BTreeMap<String, PrAccumulator> = BTreeMap::new();
@@ -1096,15 +1347,7 @@ fn accuracy(
         tile_visits: 0,
         thinnings: 0,
     };
-    let fw_cfg = SamplingConfig {
-        bounds: Bounds {
-            rays: Some(fw::RAYS),
-            scans: Some(fw::SCANS),
-            local: Some(fw::LOCAL_RAYS),
-            u8_counts: true,
-        },
-        ..SamplingConfig::default()
-    };
+    let fw_cfg = crate::eval::with_firmware_bounds(SamplingConfig::default());
     let host_cfg = SamplingConfig::default();
     for run in 0..acc.runs {
         let (w, s);
@@ -1207,13 +1450,24 @@ pub fn print_report(r: &FirmwareReport) {
     if let Some(c) = &r.counters {
         println!("counters: {c:?}");
     }
+    if let Some(n) = &r.noise {
+        println!(
+            "noise: {} bytes corrupted; {} of {} LD06 packets and {} of {} frames damaged; {} points in damaged packets of framed scans; replay of the intact packets alone {}",
+            n.corrupted_bytes, n.damaged_packets, n.packets, n.damaged_frames, n.frames,
+            n.points_in_damaged_packets,
+            if n.surviving_replay_identical { "identical" } else { "DIFFERENT" }
+        );
+    }
+    if r.hellos > 1 {
+        println!("the firmware reset: {} Hello messages", r.hellos);
+    }
     if let Some(s) = &r.sampler {
         println!("sampler: {s:?}");
     }
     let f = &r.figures;
     if f.scans > 0 {
         println!(
-            "instructions (qemu -icount shift=0): per cell update {:.1}; per scan {:.0} (max {}, {:.0} beams, {:.0} cells); store+refresh {:.0}/scan; per sampled patch {:.0} ({} updates, {:.0}/scan); stack {} B (mapping loop) / {} B (building the sampler) of {} B",
+            "instructions (qemu -icount shift=0): insert+seed+store+refresh per updated cell {:.1}, per scan {:.0} (max {}, {:.0} beams, {:.0} cells; separate store+refresh {:.0}/scan); per sampled patch {:.0} ({} updates, {:.0}/scan); stack {} B (mapping loop) / {} B (building the sampler) of {} B",
             f.insert_per_cell, f.insert_per_scan, f.insert_per_scan_max, f.beams_per_scan,
             f.cells_per_scan, f.store_per_scan, f.per_patch, f.sampler_updates,
             f.updates_per_scan, f.stack_used, f.stack_config, f.stack_size
@@ -1268,10 +1522,23 @@ pub fn cli(args: &FirmwareArgs) -> anyhow::Result<()> {
             g.errors,
             g.done
         );
+        ensure!(
+            g.done.is_some(),
+            "{}: truncated map stream: {} frames but no Done message",
+            path.display(),
+            events.len()
+        );
         return Ok(());
     }
     if args.host_only && !args.accuracy {
         bail!("--host-only only makes sense with --accuracy");
+    }
+    // Bad input files first, each with a one-line error naming it (before the toolchain check).
+    if let Some(elf) = &args.elf {
+        check_elf(elf)?;
+    }
+    if args.map.is_some() {
+        firmware_world(args)?;
     }
     if !args.host_only {
         if let Some(why) = toolchain_missing() {

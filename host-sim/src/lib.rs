@@ -3,12 +3,16 @@
 //! nothing here re-implements it.
 #![warn(missing_docs)]
 
+pub mod baselines;
+pub mod carmen;
 pub mod demo;
 pub mod eval;
+pub mod eval_log;
 pub mod explore;
 pub mod firmware;
 pub mod lidar;
 pub mod link;
+pub mod map_export;
 pub mod metrics;
 pub mod prior;
 pub mod progress;

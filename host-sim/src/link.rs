@@ -55,7 +55,29 @@ pub fn scan_packets(beams: &[Beam], timestamp_ms: &mut u16) -> anyhow::Result<Ve
     Ok(out)
 }
 
-/// The robot's whole input for a run, and where each scan's bytes start.
+/// What a span of the robot's input is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UnitKind {
+    /// A host frame (leading `0x00` included).
+    Frame,
+    /// An LD06 packet of a scan.
+    Packet,
+    /// Deliberate garbage (`encode_run`'s `garbage`).
+    Garbage,
+}
+
+/// One packet, frame or garbage burst of the input: `bytes[start..start + len]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Unit {
+    /// What it is.
+    pub kind: UnitKind,
+    /// First byte.
+    pub start: usize,
+    /// Length.
+    pub len: usize,
+}
+
+/// The robot's whole input for a run, and where each of its units lies.
 #[derive(Clone, Debug, Default)]
 pub struct RunInput {
     /// The bytes.
@@ -66,6 +88,26 @@ pub struct RunInput {
     pub points: u64,
     /// Bytes of deliberate garbage mixed in.
     pub garbage_bytes: usize,
+    /// Every frame, packet and garbage burst, in order (they tile `bytes`).
+    pub units: Vec<Unit>,
+}
+
+impl RunInput {
+    fn push(&mut self, kind: UnitKind, bytes: &[u8]) {
+        self.units.push(Unit {
+            kind,
+            start: self.bytes.len(),
+            len: bytes.len(),
+        });
+        self.bytes.extend_from_slice(bytes);
+    }
+
+    fn frame(&mut self, msg: &HostMsg, repeat: usize) {
+        let f = host_frame(msg);
+        for _ in 0..repeat.max(1) {
+            self.push(UnitKind::Frame, &f);
+        }
+    }
 }
 
 /// Builds the input: `Config`, then per scan `ScanStart`, its LD06 packets and `ScanEnd`, then
@@ -77,29 +119,39 @@ pub fn encode_run(
     scans: &[ScanRecord],
     garbage: bool,
 ) -> anyhow::Result<RunInput> {
+    encode_run_with(config, scans, garbage, 1)
+}
+
+/// [`encode_run`] sending every host frame `repeat_frames` times in a row (for a noisy link:
+/// a frame is lost only if all its copies are; the robot ignores exact repeats, see
+/// `ogm_core::link`).
+pub fn encode_run_with(
+    config: &RunConfig,
+    scans: &[ScanRecord],
+    garbage: bool,
+    repeat_frames: usize,
+) -> anyhow::Result<RunInput> {
     let mut input = RunInput::default();
-    input.bytes.extend(host_frame(&HostMsg::Config(*config)));
+    input.frame(&HostMsg::Config(*config), repeat_frames);
     let mut ts = 0u16;
     let mut x = 0x2545_F491u32;
     for (k, s) in scans.iter().enumerate() {
         let seq = u32::try_from(k)?;
         let packets = scan_packets(&s.beams, &mut ts)?;
         if garbage && k % 5 == 2 {
-            let start = input.bytes.len();
+            let mut junk = Vec::new();
             for _ in 0..64 {
                 x ^= x << 13;
                 x ^= x >> 17;
                 x ^= x << 5;
-                input.bytes.push(match x % 9 {
+                junk.push(match x % 9 {
                     0 => 0x54,
                     1 => 0x2C,
                     2 => 0x00,
                     _ => (x >> 16) as u8,
                 });
             }
-            input
-                .bytes
-                .extend_from_slice(&packets[..20.min(packets.len())]);
+            junk.extend_from_slice(&packets[..20.min(packets.len())]);
             let mut bad = host_frame(&HostMsg::ScanEnd {
                 seq,
                 points: 12_345,
@@ -107,22 +159,31 @@ pub fn encode_run(
             if let Some(b) = bad.get_mut(4) {
                 *b ^= 0x21;
             }
-            input.bytes.extend(bad);
-            input.garbage_bytes += input.bytes.len() - start;
+            junk.extend(bad);
+            input.garbage_bytes += junk.len();
+            input.push(UnitKind::Garbage, &junk);
         }
-        input.bytes.extend(host_frame(&HostMsg::ScanStart {
-            seq,
-            pose: WirePose::from(s.pose),
-        }));
-        input.bytes.extend_from_slice(&packets);
-        input.bytes.extend(host_frame(&HostMsg::ScanEnd {
-            seq,
-            points: s.beams.len() as u32,
-        }));
+        input.frame(
+            &HostMsg::ScanStart {
+                seq,
+                pose: WirePose::from(s.pose),
+            },
+            repeat_frames,
+        );
+        for p in packets.chunks(PACKET_LEN) {
+            input.push(UnitKind::Packet, p);
+        }
+        input.frame(
+            &HostMsg::ScanEnd {
+                seq,
+                points: s.beams.len() as u32,
+            },
+            repeat_frames,
+        );
         input.scans += 1;
         input.points += s.beams.len() as u64;
     }
-    input.bytes.extend(host_frame(&HostMsg::Finish));
+    input.frame(&HostMsg::Finish, repeat_frames);
     Ok(input)
 }
 
@@ -375,11 +436,16 @@ impl StreamedMap {
 /// Reads a captured stream file (e.g. UART1 of `scripts/firmware.sh run`) and summarises it.
 pub fn decode_file(path: &std::path::Path) -> anyhow::Result<Vec<DeviceEvent>> {
     let bytes = std::fs::read(path).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    ensure!(!bytes.is_empty(), "{}: file is empty", path.display());
     let mut d = StreamDecoder::new();
     let events: Vec<DeviceEvent> = d.push(&bytes).into_iter().filter_map(Result::ok).collect();
     let s = d.stats();
     if events.is_empty() {
-        bail!("{}: no frames in {} bytes", path.display(), s.bytes);
+        bail!(
+            "{}: wrong format: not a map stream (no valid frame in {} bytes)",
+            path.display(),
+            s.bytes
+        );
     }
     println!(
         "{}: {} bytes, {} frames, {} bad, {} oversized",

@@ -44,8 +44,8 @@ enum Commands {
         /// First random seed (run i of map j uses seed + 1000·j + i).
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Methods besides traditional OGM: gibbs_l1, gibbs_l9, gibbs_l9_border (comma-separated),
-        /// or "none".
+        /// Methods besides traditional OGM: gibbs_l1, gibbs_l9, gibbs_l9_border and the baselines
+        /// mh, mh_heatmap, bp_sum, bp_max, dd (comma-separated), or "none".
         #[arg(long, default_value = "gibbs_l1,gibbs_l9,gibbs_l9_border")]
         methods: String,
         /// Sampler sweeps (map samples) counted after burn-in.
@@ -57,6 +57,22 @@ enum Commands {
         /// Use the firmware's compile-time buffer sizes (ray store, local list, u8 marginals).
         #[arg(long)]
         firmware_bounds: bool,
+    },
+    /// The paper's hardware protocol on a real CARMEN log (benchmark, experiments 1-3).
+    EvalLog(host_sim::eval_log::EvalLogArgs),
+    /// Export a map as ROS map_server PGM + YAML and PNG (from a log, a probability PNG or a
+    /// ground-truth map).
+    Export(host_sim::map_export::ExportArgs),
+    /// Merali & Barfoot's Fig. 2: the 1-D example's exact posterior next to traditional OGM and
+    /// the samplers (SVG plots and exact_1d.json).
+    #[command(name = "exact-1d")]
+    ExactOneD {
+        /// Output directory.
+        #[arg(long, default_value = "out/exact-1d")]
+        out: PathBuf,
+        /// Seed of the readings and the samplers.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
     },
     /// Train the data-driven patch prior on the real-map corpus and regenerate its tables.
     TrainPrior {
@@ -103,6 +119,7 @@ fn eval_sim(
 ) -> anyhow::Result<()> {
     use host_sim::sampling::{SamplingConfig, Variant};
     let mut variants = Vec::new();
+    let mut baselines = Vec::new();
     for m in methods
         .split(',')
         .map(str::trim)
@@ -110,7 +127,10 @@ fn eval_sim(
     {
         match Variant::ALL.iter().find(|v| v.name() == m) {
             Some(v) => variants.push(*v),
-            None => anyhow::bail!("--methods: unknown method `{m}` (expected gibbs_l1, gibbs_l9, gibbs_l9_border or none)"),
+            None => match host_sim::baselines::Method::from_name(m) {
+                Some(b) => baselines.push(b),
+                None => anyhow::bail!("--methods: unknown method `{m}` (expected gibbs_l1, gibbs_l9, gibbs_l9_border, mh, mh_heatmap, bp_sum, bp_max, dd or none)"),
+            },
         }
     }
     let mut sampling = SamplingConfig {
@@ -119,7 +139,7 @@ fn eval_sim(
         ..SamplingConfig::default()
     };
     if firmware_bounds {
-        sampling.bounds = host_sim::eval::firmware_bounds();
+        sampling = host_sim::eval::with_firmware_bounds(sampling);
     }
     let cfg = host_sim::eval::EvalConfig {
         runs,
@@ -127,6 +147,15 @@ fn eval_sim(
         variants,
         sim: Default::default(),
         sampling,
+        baselines,
+        baseline: host_sim::baselines::BaselineConfig {
+            model: host_sim::baselines::SensorModel::Gaussian {
+                sigma_cells: sampling.sigma_cells,
+                outlier_weight: sampling.outlier_weight,
+            },
+            init_threshold: sampling.init_threshold,
+            ..Default::default()
+        },
     };
     host_sim::eval::run_sim(maps, out, &cfg)
 }
@@ -172,6 +201,9 @@ fn main() -> ExitCode {
                 host_sim::prior::train_prior_cmd(&corpus, &core_out, &l25_out, threads, check)
             }
         }
+        Commands::EvalLog(args) => host_sim::eval_log::run(&args),
+        Commands::Export(args) => host_sim::map_export::run(&args),
+        Commands::ExactOneD { out, seed } => host_sim::baselines::fig2::run(&out, seed),
         Commands::PriorStats { json } => host_sim::prior::prior_stats_cmd(json),
         Commands::Firmware(args) => host_sim::firmware::cli(&args),
     };

@@ -20,6 +20,12 @@
 //! the points in between are one scan taken at `pose` ([`Step::Scan`]). Points outside a scan,
 //! an unmatched `ScanEnd`, a scan never ended and points announced but not received are counted
 //! and reported ([`Step::Error`]); the scan itself is still delivered with what arrived.
+//!
+//! **Repeated frames.** On a noisy link the host may send every host frame more than once (a
+//! frame is lost only if every copy is damaged). Exact repeats are idempotent here and cost
+//! nothing: a `ScanStart` equal to the open scan's (same `seq` and pose) is ignored, and so is a
+//! `ScanEnd` for the scan just delivered (same `seq`, no scan open); the firmware ignores a
+//! `Config` equal to the one it runs with.
 
 use crate::geometry::Pose;
 use crate::hal::{Beam, ScanBuf};
@@ -275,6 +281,8 @@ pub enum Step<'s> {
 pub struct LinkRx {
     demux: LinkDemux,
     open: Option<(u32, Pose)>,
+    /// The scan delivered last, while no other is open (a repeat of its `ScanEnd` is ignored).
+    closed: Option<u32>,
     received: u32,
     outside: u32,
     lost: u32,
@@ -287,6 +295,7 @@ impl LinkRx {
         LinkRx {
             demux: LinkDemux::new(),
             open: None,
+            closed: None,
             received: 0,
             outside: 0,
             lost: 0,
@@ -320,6 +329,7 @@ impl LinkRx {
         let LinkRx {
             demux,
             open,
+            closed,
             received,
             outside,
             lost,
@@ -340,6 +350,10 @@ impl LinkRx {
                 }
             }
             LinkEvent::Host(HostMsg::ScanStart { seq, pose }) => {
+                if *open == Some((seq, pose.into())) {
+                    return; // a repeat of the open scan's start
+                }
+                *closed = None;
                 if let Some((old, _)) = open.take() {
                     bump(seq_errors);
                     f(Step::Error(LinkError::ScanSequence { seq: old }));
@@ -349,7 +363,9 @@ impl LinkRx {
                 *received = 0;
             }
             LinkEvent::Host(HostMsg::ScanEnd { seq, points }) => match open.take() {
+                None if *closed == Some(seq) => {} // a repeat of the last scan's end
                 Some((s, pose)) if s == seq => {
+                    *closed = Some(seq);
                     if points > *received {
                         *lost = lost.saturating_add(points - *received);
                         f(Step::Error(LinkError::PointsLost {
@@ -483,6 +499,52 @@ mod tests {
             assert_eq!(c.ld06_packets, 12);
             assert_eq!(c.frames, 8);
             assert_eq!(c.garbage_bytes + c.frame_errors + c.ld06_crc_errors, 0);
+        }
+    }
+
+    #[test]
+    fn repeated_frames_are_idempotent() {
+        // Every host frame three times (what the host sends on a noisy link): same steps, no
+        // error, and one damaged copy of each changes nothing either.
+        let cfg = RunConfig::paper((0, 0), 3000, 1, Budget::Fixed { updates: 5 });
+        let bs = beams(48, 1500);
+        let start = frame(&HostMsg::ScanStart {
+            seq: 4,
+            pose: WirePose {
+                x_mm: 400,
+                y_mm: -5,
+                heading: 77,
+            },
+        });
+        let end = frame(&HostMsg::ScanEnd { seq: 4, points: 48 });
+        let mut v = Vec::new();
+        let mut damaged = Vec::new();
+        for f in [frame(&HostMsg::Config(cfg)), start] {
+            v.extend(f.repeat(3));
+            let mut bad = f.clone();
+            bad[3] ^= 0x40;
+            damaged.extend(bad);
+            damaged.extend(f.repeat(2));
+        }
+        let mut packets = Vec::new();
+        encode_scan(&bs, 3600, 0, 3, |p| packets.extend_from_slice(p)).unwrap();
+        v.extend(&packets);
+        damaged.extend(&packets);
+        v.extend(end.repeat(3));
+        let mut bad = end.clone();
+        bad[2] ^= 0x08;
+        damaged.extend(bad);
+        damaged.extend(end.repeat(2));
+        for (bytes, errors) in [(&v, 0), (&damaged, 3)] {
+            let (out, c) = collect(bytes, 5);
+            let configs = out.iter().filter(|o| o.starts_with("Config(")).count();
+            assert_eq!(configs, 3 - errors / 3, "{out:?}");
+            let rest: Vec<&String> = out.iter().filter(|o| !o.starts_with("Config(")).collect();
+            let errs = rest.iter().filter(|o| o.starts_with("Error(")).count();
+            assert_eq!(errs, errors, "{out:?}");
+            let scans: Vec<&&String> = rest.iter().filter(|o| o.starts_with("scan")).collect();
+            assert_eq!(scans, [&"scan 4 400 48"], "{out:?}");
+            assert_eq!((c.scan_seq_errors, c.points_lost), (0, 0));
         }
     }
 

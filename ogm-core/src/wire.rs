@@ -223,13 +223,15 @@ impl RunConfig {
         )
     }
 
-    /// The sampler settings.
+    /// The sampler settings. The initial sample uses [`SamplerConfig`]'s default threshold
+    /// (−1 LSB: never-observed cells start occupied); online, cells are seeded from their
+    /// log-odds when first observed ([`crate::pipeline::insert_and_seed`]).
     pub fn sampler_config(&self) -> SamplerConfig {
         SamplerConfig {
             p_rand_patch: (f64::from(self.p_rand_patch_ppm) / 1e6) as f32,
             burn_in_sweeps: self.burn_in_sweeps,
             max_candidates: self.max_candidates,
-            init_threshold: LogOdds::ZERO,
+            init_threshold: SamplerConfig::default().init_threshold,
             tile_shift: self.sampler_tile_shift,
             visit_sweeps: self.visit_sweeps,
             seed: self.seed,

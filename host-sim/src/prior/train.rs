@@ -122,6 +122,12 @@ impl Corpus {
     /// Lists and hashes the corpus under `root`. Fails with a clear message if `root` or one of
     /// its two folders is missing.
     pub fn scan(root: &Path) -> Result<Corpus> {
+        if root.exists() && !root.is_dir() {
+            bail!(
+                "training corpus {}: not a directory (expected a folder with houseexpo/ and ros/)",
+                root.display()
+            );
+        }
         if !root.is_dir() {
             bail!(
                 "training corpus {} not found (expected ../shared/data/maps/train beside the \

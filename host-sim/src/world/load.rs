@@ -10,7 +10,7 @@
 //! that names the file.
 
 use std::fs::File;
-use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::io::{BufReader, Cursor, Read};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 
@@ -447,13 +447,22 @@ fn sniff(head: &[u8]) -> &'static str {
     }
 }
 
+/// The image formats a map can be stored in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImageKind {
+    /// PNG (any bit depth and colour type the `image` crate reads).
+    Png,
+    /// PGM, plain (P2) or binary (P5).
+    Pgm,
+}
+
 /// Decodes a `.png` (PNG) or `.pgm` (P2/P5) file, checking content against extension, size
 /// against [`MAX_SIDE`], and turning every decoder failure (even a panic) into a [`MapError`].
 pub(crate) fn decode_image(path: &Path) -> Result<DynamicImage, MapError> {
     let ext = extension(path);
-    let (format, expected) = match ext.as_str() {
-        "png" => (ImageFormat::Png, "PNG"),
-        "pgm" => (ImageFormat::Pnm, "PGM"),
+    let kind = match ext.as_str() {
+        "png" => ImageKind::Png,
+        "pgm" => ImageKind::Pgm,
         _ => {
             return Err(MapError::Format {
                 path: path.to_path_buf(),
@@ -461,17 +470,40 @@ pub(crate) fn decode_image(path: &Path) -> Result<DynamicImage, MapError> {
             })
         }
     };
-    let (mut file, len) = open(path)?;
-    let mut head = Vec::with_capacity(8);
-    let read_err = |e: std::io::Error| MapError::Io {
-        path: path.to_path_buf(),
-        detail: one_line(e),
+    let (file, len) = open(path)?;
+    let mut bytes = Vec::with_capacity(usize::try_from(len).unwrap_or(0));
+    BufReader::new(file)
+        .read_to_end(&mut bytes)
+        .map_err(|e| MapError::Io {
+            path: path.to_path_buf(),
+            detail: one_line(e),
+        })?;
+    decode_image_bytes(path, &bytes, kind, MAX_SIDE)
+}
+
+/// The byte-level half of the image loader (what [`load_image`] runs on a file's contents, and
+/// what the `map_loader` fuzz target drives): checks the content against `kind`, the size
+/// against `max_side` pixels a side (at most [`MAX_SIDE`]), and turns every decoder failure
+/// (even a panic) into a [`MapError`] naming `path`.
+pub fn decode_image_bytes(
+    path: &Path,
+    bytes: &[u8],
+    kind: ImageKind,
+    max_side: usize,
+) -> Result<DynamicImage, MapError> {
+    let max_side = max_side.min(MAX_SIDE);
+    let (format, expected) = match kind {
+        ImageKind::Png => (ImageFormat::Png, "PNG"),
+        ImageKind::Pgm => (ImageFormat::Pnm, "PGM"),
     };
-    (&mut file)
-        .take(8)
-        .read_to_end(&mut head)
-        .map_err(read_err)?;
-    match sniff(&head) {
+    let len = bytes.len();
+    if len == 0 {
+        return Err(MapError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
+    let head = &bytes[..len.min(8)];
+    match sniff(head) {
         found if found == expected => {}
         "truncated PNG" if expected == "PNG" => {
             return Err(MapError::Corrupt {
@@ -489,8 +521,7 @@ pub(crate) fn decode_image(path: &Path) -> Result<DynamicImage, MapError> {
             })
         }
     }
-    file.seek(SeekFrom::Start(0)).map_err(read_err)?;
-    let mut reader = BufReader::new(file);
+    let mut reader = Cursor::new(bytes);
     let corrupt = |e: image::ImageError| match e {
         image::ImageError::Limits(l) => MapError::TooLarge {
             path: path.to_path_buf(),
@@ -516,10 +547,10 @@ pub(crate) fn decode_image(path: &Path) -> Result<DynamicImage, MapError> {
     }))
     .map_err(panicked)?
     .map_err(corrupt)?;
-    if w as usize > MAX_SIDE || h as usize > MAX_SIDE {
+    if w as usize > max_side || h as usize > max_side {
         return Err(MapError::TooLarge {
             path: path.to_path_buf(),
-            detail: format!("{w}x{h} px, the limit is {MAX_SIDE} px a side"),
+            detail: format!("{w}x{h} px, the limit is {max_side} px a side"),
         });
     }
     if w == 0 || h == 0 {
@@ -528,12 +559,12 @@ pub(crate) fn decode_image(path: &Path) -> Result<DynamicImage, MapError> {
             detail: format!("image is {w}x{h} px"),
         });
     }
-    reader.seek(SeekFrom::Start(0)).map_err(read_err)?;
+    reader.set_position(0);
     let img = catch_unwind(AssertUnwindSafe(|| {
         let mut r = ImageReader::with_format(&mut reader, format);
         let mut limits = Limits::default();
-        limits.max_image_width = Some(MAX_SIDE as u32);
-        limits.max_image_height = Some(MAX_SIDE as u32);
+        limits.max_image_width = Some(max_side as u32);
+        limits.max_image_height = Some(max_side as u32);
         r.limits(limits);
         r.decode()
     }))
@@ -591,8 +622,29 @@ pub fn read_ros_yaml(path: &Path) -> Result<RosMapMeta, MapError> {
             path: path.to_path_buf(),
             detail: one_line(e),
         })?;
-    let text = String::from_utf8(bytes).map_err(|_| yaml_err("not UTF-8 text".into()))?;
-    let doc: Value = serde_yaml::from_str(&text).map_err(|e| yaml_err(one_line(e)))?;
+    parse_ros_yaml(path, &bytes)
+}
+
+/// The byte-level half of [`read_ros_yaml`]: validates a map YAML's contents (`path` names it in
+/// errors and anchors a relative `image`). Used by the `map_loader` fuzz target.
+pub fn parse_ros_yaml(path: &Path, bytes: &[u8]) -> Result<RosMapMeta, MapError> {
+    let yaml_err = |detail: String| MapError::Yaml {
+        path: path.to_path_buf(),
+        detail,
+    };
+    if bytes.is_empty() {
+        return Err(MapError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
+    if bytes.len() as u64 > MAX_YAML_BYTES {
+        return Err(yaml_err(format!(
+            "{} bytes, larger than any map description ({MAX_YAML_BYTES} bytes allowed)",
+            bytes.len()
+        )));
+    }
+    let text = std::str::from_utf8(bytes).map_err(|_| yaml_err("not UTF-8 text".into()))?;
+    let doc: Value = serde_yaml::from_str(text).map_err(|e| yaml_err(one_line(e)))?;
     let map = match &doc {
         Value::Mapping(m) => m,
         other => {

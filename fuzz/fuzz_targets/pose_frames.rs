@@ -1,0 +1,340 @@
+//! Pose frames and scans end to end, as the robot sees them: an input-chosen sequence of host
+//! frames (`Config` with any field values, `ScanStart` with any pose — far outside the map
+//! included —, `ScanEnd`, `Finish`), LD06 packets (any distance, zero = no return, more than a
+//! scan buffer holds), raw bytes and flipped bits, through `ogm_core::link::LinkRx` into the
+//! firmware's per-scan step: `pipeline::insert_and_seed` (mapper, seeding, ray store, cache
+//! refresh), sampler steps, and the tile-box computation of the firmware's `mark_dirty`
+//! (`Pose::beam_end` → `GridGeometry::cell_of_point`). A 64 × 64 grid and small buffers keep
+//! an input fast. Invariants: nothing panics; log-odds stay within the clamp; the sampler's
+//! counts never exceed its samples.
+#![no_main]
+
+use arbitrary::Arbitrary;
+use libfuzzer_sys::fuzz_target;
+use ogm_core::gibbs::{block_words, BorderPrior, Buffers, Gibbs, LocalRay};
+use ogm_core::ld06::{Packet, Point, POINTS};
+use ogm_core::link::{LinkRx, Step};
+use ogm_core::mapper::marks_len;
+use ogm_core::pipeline::insert_and_seed;
+use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::wire::{self, Budget, HostMsg, RunConfig, WirePose, MAX_HOST_FRAME};
+use ogm_core::{Beam, LogOdds, LogOddsGrid, Mapper, Range, ScanBuf};
+
+const W: u16 = 64;
+const H: u16 = 64;
+const MAX_BEAMS: usize = 96;
+
+#[derive(Arbitrary, Debug)]
+enum Item {
+    Config {
+        origin_x_mm: i32,
+        origin_y_mm: i32,
+        cell_mm: u32,
+        max_range_mm: u32,
+        min_range_mm: u32,
+        seed: u64,
+        sigma_milli_cells: u32,
+        outlier_ppm: u32,
+        p_rand_patch_ppm: u32,
+        burn_in_sweeps: u32,
+        max_candidates: u8,
+        sampler_tile_shift: u8,
+        visit_sweeps: u8,
+        updates: u8,
+    },
+    PaperConfig {
+        origin_x_mm: i16,
+        origin_y_mm: i16,
+        max_range_mm: u16,
+        updates: u8,
+    },
+    Start {
+        seq: u8,
+        x_mm: i32,
+        y_mm: i32,
+        heading: u16,
+    },
+    NearStart {
+        seq: u8,
+        x_mm: i16,
+        y_mm: i16,
+        heading: u16,
+    },
+    End {
+        seq: u8,
+        points: u32,
+    },
+    Finish,
+    Packet {
+        speed_dps: u16,
+        start_cdeg: u16,
+        end_cdeg: u16,
+        timestamp_ms: u16,
+        distance_mm: [u16; POINTS],
+    },
+    Packets {
+        count: u8,
+        distance_mm: u16,
+    },
+    Raw(Vec<u8>),
+    Flip {
+        at: u16,
+        xor: u8,
+    },
+}
+
+fn frame(out: &mut Vec<u8>, m: &HostMsg) {
+    let mut buf = [0u8; MAX_HOST_FRAME];
+    if let Ok(f) = wire::encode(m, &mut buf) {
+        out.push(0);
+        out.extend_from_slice(f);
+    }
+}
+
+fn packet(out: &mut Vec<u8>, p: Packet) {
+    out.extend_from_slice(&p.to_bytes());
+}
+
+type Machine = (
+    RunConfig,
+    Mapper<Vec<LogOdds>, Vec<u32>>,
+    RayStore<Vec<StoredScan>, Vec<StoredRay>>,
+    Gibbs<BorderPrior, Vec<u32>, Vec<u8>, Vec<LocalRay>, Vec<u32>, u8>,
+);
+
+/// Builds the mapping state as the firmware's `Machine::build` does (small buffers).
+fn build(config: RunConfig) -> Option<Machine> {
+    let g = config.geometry(W, H).ok()?;
+    let grid = LogOddsGrid::new(g, vec![LogOdds::ZERO; g.len()]).ok()?;
+    let mapper = Mapper::new(grid, vec![0; marks_len(g.len())], config.mapper_config()).ok()?;
+    let forward = config.forward_model().ok()?;
+    let mut store = RayStore::new(
+        g,
+        config.max_range_mm,
+        config.min_range_mm,
+        vec![StoredScan::default(); 8],
+        vec![StoredRay::default(); 256],
+    )
+    .ok()?;
+    let sc = config.sampler_config();
+    let mut gibbs = Gibbs::new(
+        g,
+        BorderPrior,
+        forward,
+        sc,
+        Buffers {
+            sample: vec![0; g.len().div_ceil(32)],
+            counts: vec![0u8; g.len()],
+            local: vec![LocalRay::default(); 32],
+            blocks: vec![0; block_words(32, sc.block_grid)],
+        },
+    )
+    .ok()?;
+    gibbs.reset(mapper.grid().cells(), &mut store).ok()?;
+    Some((config, mapper, store, gibbs))
+}
+
+fuzz_target!(|items: Vec<Item>| {
+    let mut bytes = Vec::new();
+    for it in items.iter().take(64) {
+        match *it {
+            Item::Config {
+                origin_x_mm,
+                origin_y_mm,
+                cell_mm,
+                max_range_mm,
+                min_range_mm,
+                seed,
+                sigma_milli_cells,
+                outlier_ppm,
+                p_rand_patch_ppm,
+                burn_in_sweeps,
+                max_candidates,
+                sampler_tile_shift,
+                visit_sweeps,
+                updates,
+            } => frame(
+                &mut bytes,
+                &HostMsg::Config(RunConfig {
+                    origin_x_mm,
+                    origin_y_mm,
+                    cell_mm,
+                    max_range_mm,
+                    min_range_mm,
+                    seed,
+                    sigma_milli_cells,
+                    outlier_ppm,
+                    p_rand_patch_ppm,
+                    burn_in_sweeps,
+                    max_candidates,
+                    sampler_tile_shift,
+                    visit_sweeps,
+                    budget: Budget::Fixed {
+                        updates: u32::from(updates),
+                    },
+                    tiles_per_scan: 8,
+                    count_tiles_per_scan: 8,
+                }),
+            ),
+            Item::PaperConfig {
+                origin_x_mm,
+                origin_y_mm,
+                max_range_mm,
+                updates,
+            } => frame(
+                &mut bytes,
+                &HostMsg::Config(RunConfig::paper(
+                    (i32::from(origin_x_mm), i32::from(origin_y_mm)),
+                    u32::from(max_range_mm),
+                    1,
+                    Budget::Fixed {
+                        updates: u32::from(updates),
+                    },
+                )),
+            ),
+            Item::Start {
+                seq,
+                x_mm,
+                y_mm,
+                heading,
+            } => frame(
+                &mut bytes,
+                &HostMsg::ScanStart {
+                    seq: u32::from(seq),
+                    pose: WirePose {
+                        x_mm,
+                        y_mm,
+                        heading,
+                    },
+                },
+            ),
+            Item::NearStart {
+                seq,
+                x_mm,
+                y_mm,
+                heading,
+            } => frame(
+                &mut bytes,
+                &HostMsg::ScanStart {
+                    seq: u32::from(seq),
+                    pose: WirePose {
+                        x_mm: i32::from(x_mm) / 8 + 1600,
+                        y_mm: i32::from(y_mm) / 8 + 1600,
+                        heading,
+                    },
+                },
+            ),
+            Item::End { seq, points } => frame(
+                &mut bytes,
+                &HostMsg::ScanEnd {
+                    seq: u32::from(seq),
+                    points,
+                },
+            ),
+            Item::Finish => frame(&mut bytes, &HostMsg::Finish),
+            Item::Packet {
+                speed_dps,
+                start_cdeg,
+                end_cdeg,
+                timestamp_ms,
+                distance_mm,
+            } => packet(
+                &mut bytes,
+                Packet {
+                    speed_dps,
+                    start_cdeg,
+                    end_cdeg,
+                    timestamp_ms,
+                    points: distance_mm.map(|d| Point {
+                        distance_mm: d,
+                        intensity: 200,
+                    }),
+                },
+            ),
+            Item::Packets { count, distance_mm } => {
+                for k in 0..u16::from(count % 16) {
+                    let start = (k * 2400) % 36_000;
+                    packet(
+                        &mut bytes,
+                        Packet {
+                            speed_dps: 3600,
+                            start_cdeg: start,
+                            end_cdeg: (start + 2200) % 36_000,
+                            timestamp_ms: k,
+                            points: [Point {
+                                distance_mm: distance_mm.wrapping_add(k * 37),
+                                intensity: 200,
+                            }; POINTS],
+                        },
+                    );
+                }
+            }
+            Item::Raw(ref v) => bytes.extend(v.iter().take(256)),
+            Item::Flip { at, xor } => {
+                if !bytes.is_empty() {
+                    let i = usize::from(at) % bytes.len();
+                    bytes[i] ^= xor;
+                }
+            }
+        }
+    }
+
+    let mut rx = LinkRx::new();
+    let mut scan: ScanBuf<MAX_BEAMS> = ScanBuf::new();
+    let mut machine: Option<Machine> = None;
+    let mut configured = false;
+    let mut scans = 0u32;
+    rx.feed(&bytes, &mut scan, |step| match step {
+        Step::Config(c) => {
+            if !configured {
+                configured = true;
+                machine = build(c);
+            }
+        }
+        Step::Scan { pose, beams, .. } => {
+            assert!(beams.len() <= MAX_BEAMS);
+            let Some((config, mapper, store, gibbs)) = machine.as_mut() else {
+                return;
+            };
+            scans += 1;
+            let _ = insert_and_seed(mapper, store, gibbs, &pose, beams);
+            if let Budget::Fixed { updates } = config.budget {
+                gibbs.step(store, updates.min(256));
+            }
+            // The firmware's `mark_dirty`: the box around the pose and every beam end.
+            let g = *mapper.grid().geometry();
+            let cfg = *mapper.config();
+            let c = g.cell_of_pose(&pose);
+            let (mut x0, mut y0, mut x1, mut y1) = (c.x, c.y, c.x, c.y);
+            for b in beams {
+                let r = match b.range {
+                    Range::Hit(mm) if mm < cfg.min_range_mm => continue,
+                    Range::Hit(mm) if mm < cfg.max_range_mm => mm,
+                    _ => cfg.max_range_mm,
+                };
+                let (x, y) = pose.beam_end(b.angle, r);
+                let e = g.cell_of_point(x, y);
+                (x0, y0, x1, y1) = (x0.min(e.x), y0.min(e.y), x1.max(e.x), y1.max(e.y));
+            }
+            assert!(x0 <= x1 && y0 <= y1);
+            let _: &[Beam] = beams;
+        }
+        Step::Finish | Step::Error(_) => {}
+    });
+    rx.finish(|_| {});
+    if let Some((_, mapper, _, gibbs)) = machine.as_ref() {
+        let clamp = mapper.config().clamp;
+        for l in mapper.grid().cells() {
+            assert!(
+                *l >= clamp.min() && *l <= clamp.max(),
+                "log-odds {l:?} outside the clamp"
+            );
+        }
+        for i in 0..mapper.grid().cells().len() {
+            assert!(gibbs.count(i) <= gibbs.samples().max(255));
+        }
+    }
+    let k = rx.counters();
+    assert_eq!(k.rx_bytes as usize, bytes.len());
+    let _ = scans;
+});

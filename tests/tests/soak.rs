@@ -1,0 +1,258 @@
+//! Soak: long runs with no overflow, no drift of saturated cells and flat memory.
+//!
+//! * **Host** ([`host_soak`]): the firmware's per-scan step exactly as the host replay runs it
+//!   (`host_sim::firmware::Replay`: `pipeline::insert_and_seed`, then sampler steps, with the
+//!   firmware's buffer sizes and `u8` marginal counts) on the scans of a simulated 12.8 m run,
+//!   cycled. Checks at every cycle: log-odds within the clamp; once warmed up the map at the end
+//!   of a cycle equals the map at the end of the previous one (the same scans again: saturated
+//!   cells stay exactly where they are); samples ≤ 255 and counts ≤ samples + 1 (a sweep
+//!   counts cell by cell); the ray store within its capacity; counters never run backwards (no
+//!   wrap-around); and **no heap allocation at
+//!   all** while scans are processed (a counting global allocator, per thread), so memory is
+//!   flat by construction. The default suite runs 2 040 scans; the ≥ 100 000-scan run is
+//!   `cargo test -p ogm-tests --release --test soak -- --ignored host_soak_100k`.
+//! * **Firmware in QEMU** ([`firmware_soak`]): the same cycled run through the firmware, once
+//!   short and once long (both compared with the host cell for cell); the stack high-water mark
+//!   of the mapping loop at the end of the long run equals the short run's, i.e. it did not
+//!   move after the first scans. 40 / 160 scans in the default suite (the scan store's 128 slots
+//!   and the ray store both thin); `… -- --ignored firmware_soak_long` runs 40 / 1 000.
+//!   Skipped without QEMU unless `OGM_REQUIRE_FIRMWARE=1`.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::io::Write as _;
+
+use host_sim::firmware::{
+    firmware_world, print_report, run, run_config, toolchain_missing, FirmwareArgs, Replay,
+    FIRMWARE_SIZES,
+};
+use host_sim::sim::{simulate, SimConfig};
+use ogm_core::wire::Budget;
+
+/// Counts this thread's heap allocations (libtest runs tests on several threads).
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+fn count_one() {
+    let _ = ALLOCATIONS.try_with(|a| a.set(a.get() + 1));
+}
+
+fn allocations() -> u64 {
+    ALLOCATIONS.with(Cell::get)
+}
+
+// SAFETY: forwards to the system allocator unchanged; the counter is a const-initialised
+// thread-local `Cell` (no allocation, no destructor).
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        count_one();
+        System.alloc(layout)
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        count_one();
+        System.alloc_zeroed(layout)
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        count_one();
+        System.realloc(ptr, layout, new_size)
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        System.dealloc(ptr, layout)
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+/// Sampler updates after each scan.
+const UPDATES: u32 = 64;
+
+/// What a host soak saw.
+#[derive(Debug)]
+struct SoakReport {
+    scans: usize,
+    allocations_while_mapping: u64,
+    saturated_cells: usize,
+    samples: u32,
+    thinnings: u32,
+}
+
+fn host_soak(total: usize) -> SoakReport {
+    let args = FirmwareArgs::default();
+    let world = firmware_world(&args).expect("world");
+    let sim = simulate(&world, &SimConfig::default(), args.seed).expect("simulated run");
+    let cycle = sim.scans.len();
+    assert!(cycle > 10, "{cycle} scans");
+    let config = run_config(
+        &world,
+        &FirmwareArgs {
+            fixed_updates: Some(UPDATES),
+            ..args
+        },
+        sim.mapper_config.max_range_mm,
+    );
+    assert_eq!(config.budget, Budget::Fixed { updates: UPDATES });
+    let mut r: Replay<u8> = Replay::new(config, FIRMWARE_SIZES).expect("replay");
+    let clamp = config.mapper_config().clamp;
+    let warm_up = 20 * cycle;
+    let mut previous: Option<Vec<i16>> = None;
+    let mut allocs = 0u64;
+    let mut last = r.sampler_report();
+    for k in 0..total {
+        let s = &sim.scans[k % cycle];
+        let before = allocations();
+        let (_, ok) = r.scan(k as u32, &s.pose, &s.beams, 0, UPDATES);
+        allocs += allocations() - before;
+        assert!(ok, "scan {k} rejected");
+        if (k + 1) % cycle != 0 {
+            continue;
+        }
+        // End of a cycle.
+        let map: Vec<i16> = r.log_odds().iter().map(|l| l.raw()).collect();
+        assert!(
+            map.iter()
+                .all(|&v| (clamp.min().raw()..=clamp.max().raw()).contains(&v)),
+            "log-odds outside the clamp after scan {k}"
+        );
+        if k >= warm_up {
+            if let Some(p) = &previous {
+                let moved = p.iter().zip(&map).filter(|(a, b)| a != b).count();
+                assert_eq!(moved, 0, "{moved} cells drifted in cycle {}", k / cycle);
+            }
+        }
+        previous = Some(map);
+        let g = r.gibbs();
+        assert!(g.samples() <= 255, "{} samples in u8 counts", g.samples());
+        // Counts accumulate cell by cell during a sweep and `samples` moves at its end, so a
+        // cell can be one ahead mid-sweep.
+        let cells = r.log_odds().len();
+        assert!((0..cells).all(|i| g.count(i) <= (g.samples() + 1).min(255)));
+        let rep = r.sampler_report();
+        assert!(rep.store.scans as usize <= FIRMWARE_SIZES.scans);
+        assert!(rep.store.rays as usize <= FIRMWARE_SIZES.rays);
+        // Counters only grow (saturating where they are `u32`; `u64` ones cannot wrap here).
+        assert!(rep.updates >= last.updates && rep.store.rays_added >= last.store.rays_added);
+        assert!(rep.store.scans_added >= last.store.scans_added);
+        assert_eq!(rep.updates, (k as u64 + 1) * u64::from(UPDATES));
+        last = rep;
+    }
+    let saturated = previous.as_ref().map_or(0, |m| {
+        m.iter()
+            .filter(|&&v| v == clamp.min().raw() || v == clamp.max().raw())
+            .count()
+    });
+    SoakReport {
+        scans: total,
+        allocations_while_mapping: allocs,
+        saturated_cells: saturated,
+        samples: last.samples,
+        thinnings: last.store.thinnings,
+    }
+}
+
+fn check_host(r: &SoakReport) {
+    let _ = writeln!(std::io::stderr(), "host soak: {r:?}");
+    assert_eq!(r.allocations_while_mapping, 0, "the mapping step allocated");
+    assert!(r.saturated_cells > 1000, "{r:?}");
+    assert!(r.samples > 0 && r.thinnings > 0, "{r:?}");
+}
+
+#[test]
+fn host_soak_short() {
+    // 60 cycles of the 34-scan run: 20 to warm up, 40 checked for drift.
+    let r = host_soak(60 * 34);
+    check_host(&r);
+}
+
+#[test]
+#[ignore = "long: ~100 000 scans; cargo test -p ogm-tests --release --test soak -- --ignored host_soak_100k"]
+fn host_soak_100k() {
+    let r = host_soak(2942 * 34); // 100 028 scans
+    assert!(r.scans >= 100_000);
+    check_host(&r);
+}
+
+fn firmware_available(test: &str) -> bool {
+    let Some(why) = toolchain_missing() else {
+        return true;
+    };
+    let required = std::env::var("OGM_REQUIRE_FIRMWARE").is_ok_and(|v| v == "1");
+    assert!(
+        !required,
+        "OGM_REQUIRE_FIRMWARE=1 but the firmware cannot be run: {why}"
+    );
+    let _ = writeln!(
+        std::io::stderr(),
+        "SKIPPED {test}: {why} (set OGM_REQUIRE_FIRMWARE=1 to make this an error)"
+    );
+    false
+}
+
+/// The firmware (`elf`) on `scans` cycled scans.
+fn firmware_run(elf: &std::path::Path, scans: usize) -> host_sim::firmware::FirmwareReport {
+    let args = FirmwareArgs {
+        seed: 2,
+        elf: Some(elf.to_path_buf()),
+        soak_scans: Some(scans),
+        fixed_updates: Some(200),
+        timeout: 600,
+        ..FirmwareArgs::default()
+    };
+    let r = run(&args).expect("host-sim firmware run");
+    print_report(&r);
+    assert_eq!(r.exit_code, Some(0), "exit status (log: {:?})", r.log);
+    assert!(
+        r.identical(),
+        "{scans} scans: the streamed map differs from the host's:\n{}",
+        r.mismatches.join("\n")
+    );
+    let c = r.counters.expect("counters");
+    assert_eq!(c.scans as usize, scans);
+    assert_eq!(c.errors, 0);
+    assert_eq!(r.hellos, 1);
+    r
+}
+
+fn firmware_soak(short: usize, long: usize) {
+    // One build for both runs, so they compare the same code.
+    let log = host_sim::firmware::repo_root().join("firmware/target/qemu/soak-build.log");
+    std::fs::create_dir_all(log.parent().unwrap()).unwrap();
+    let elf = host_sim::firmware::build_elf(&log).expect("firmware build");
+    let a = firmware_run(&elf, short);
+    let b = firmware_run(&elf, long);
+    let (da, db) = (a.done.expect("Done"), b.done.expect("Done"));
+    let _ = writeln!(
+        std::io::stderr(),
+        "firmware soak: stack high-water mark {} B after {short} scans, {} B after {long} scans (of {} B)",
+        da.stack_used,
+        db.stack_used,
+        db.stack_size
+    );
+    assert_eq!(
+        da.stack_used, db.stack_used,
+        "the stack high-water mark moved between {short} and {long} scans"
+    );
+    assert_eq!(da.stack_config, db.stack_config);
+    let s = b.sampler.expect("sampler report");
+    // The long run filled both stores: whole scans and rays were thinned.
+    assert!(s.store.thinnings > 0 && s.store.rays_thinned > 0, "{s:?}");
+    assert!(s.store.scans_added as usize == long && (s.store.scans as usize) < long);
+}
+
+#[test]
+fn firmware_soak_short() {
+    if firmware_available("firmware_soak_short") {
+        firmware_soak(40, 160);
+    }
+}
+
+#[test]
+#[ignore = "long: ~4 min of QEMU; cargo test -p ogm-tests --release --test soak -- --ignored firmware_soak_long"]
+fn firmware_soak_long() {
+    if firmware_available("firmware_soak_long") {
+        firmware_soak(40, 1000);
+    }
+}
