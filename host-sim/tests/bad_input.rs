@@ -142,6 +142,11 @@ fn map_bytes_bad_input_gives_one_line_errors() {
             "free_thresh",
         ),
         ("image: m.pgm\nresol", "invalid map YAML"),
+        // Found by the map_loader fuzz target: a value quoted in the message spanned lines.
+        (
+            "image: m.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nmode: \"tri\\nnary\\n\\n\"\n",
+            "bad `mode`",
+        ),
     ] {
         let e = parse_ros_yaml(Path::new("m.yaml"), yaml.as_bytes())
             .unwrap_err()

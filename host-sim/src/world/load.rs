@@ -102,7 +102,7 @@ pub enum MapError {
         detail: String,
     },
     /// The image named in a map YAML does not exist.
-    #[error("{path}: image `{image}` not found")]
+    #[error("{path}: image `{}` not found", clip(&.image.display().to_string()))]
     ImageMissing {
         /// The YAML file.
         path: PathBuf,
@@ -125,6 +125,15 @@ pub(crate) fn one_line(s: impl std::fmt::Display) -> String {
         .split_whitespace()
         .collect::<Vec<_>>()
         .join(" ")
+}
+
+/// A value from a file quoted in a message: one line, at most 60 characters.
+pub(crate) fn clip(s: &str) -> String {
+    let s = one_line(s);
+    match s.char_indices().nth(60) {
+        Some((i, _)) => format!("{}…", &s[..i]),
+        None => s,
+    }
 }
 
 /// How map_server interprets pixel values (`mode` in the YAML).
@@ -759,7 +768,7 @@ pub fn parse_ros_yaml(path: &Path, bytes: &[u8]) -> Result<RosMapMeta, MapError>
             other => {
                 return Err(bad(
                     "mode",
-                    format!("expected trinary, scale or raw, got `{other}`"),
+                    format!("expected trinary, scale or raw, got `{}`", clip(other)),
                 ))
             }
         },
