@@ -90,14 +90,14 @@ run_one() {
         -max_total_time="$seconds" -print_final_stats=1 -max_len=4096 -timeout=20 \
         -rss_limit_mb=2048 >"$log" 2>&1 || rc=$?
     local execs
-    execs="$(grep -oE 'stat::number_of_executed_units: *[0-9]+' "$log" | grep -oE '[0-9]+$' | tail -1)"
+    execs="$(grep -aoE 'stat::number_of_executed_units: *[0-9]+' "$log" | grep -oE '[0-9]+$' | tail -1)"
     if [ "$rc" = 0 ]; then
         printf '[fuzz] %-12s %s executions in %s s, 0 crashes (corpus %s files; log fuzz/%s)\n' \
             "$t" "${execs:-?}" "$seconds" "$(find "target/corpus/$t" -type f | wc -l)" "$log" >&2
     else
         printf '[fuzz] %-12s FAILED (status %s) after %s executions; log fuzz/%s:\n' \
             "$t" "$rc" "${execs:-?}" "$log" >&2
-        grep -E 'panicked|ERROR: |SUMMARY|Test unit written|artifact_prefix' "$log" | head -8 >&2 || true
+        grep -aE 'panicked|ERROR: |SUMMARY|Test unit written|artifact_prefix' "$log" | head -8 >&2 || true
         return 1
     fi
 }
