@@ -72,34 +72,41 @@ impl Pooled {
 
 /// Expands directories into the map files inside them (sorted), keeps files as given.
 pub fn collect_maps(paths: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
+    collect_files(paths, "map files (.png, .pgm, .yaml)", |f| {
+        let ext = f
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase();
+        // A YAML describes its image; don't load the image twice.
+        match ext.as_str() {
+            "yaml" | "yml" => true,
+            "png" | "pgm" => {
+                !f.with_extension("yaml").exists() && !f.with_extension("yml").exists()
+            }
+            _ => false,
+        }
+    })
+}
+
+/// Expands command-line paths: a file is taken as it is (it must exist), a directory gives its
+/// files that `wanted` accepts, sorted (none is an error naming the directory and `what`).
+pub fn collect_files(
+    paths: &[PathBuf],
+    what: &str,
+    wanted: impl Fn(&Path) -> bool,
+) -> anyhow::Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     for p in paths {
         if p.is_dir() {
             let mut files: Vec<PathBuf> = std::fs::read_dir(p)
                 .with_context(|| format!("{}: cannot read directory", p.display()))?
                 .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|f| {
-                    let ext = f
-                        .extension()
-                        .and_then(|e| e.to_str())
-                        .unwrap_or("")
-                        .to_ascii_lowercase();
-                    // A YAML describes its image; don't load the image twice.
-                    match ext.as_str() {
-                        "yaml" | "yml" => true,
-                        "png" | "pgm" => {
-                            !f.with_extension("yaml").exists() && !f.with_extension("yml").exists()
-                        }
-                        _ => false,
-                    }
-                })
+                .filter(|f| wanted(f))
                 .collect();
             files.sort();
             if files.is_empty() {
-                bail!(
-                    "{}: no map files (.png, .pgm, .yaml) in directory",
-                    p.display()
-                );
+                bail!("{}: no {what} in directory", p.display());
             }
             out.extend(files);
         } else if p.exists() {

@@ -606,31 +606,10 @@ pub fn run(args: &EvalLogArgs) -> anyhow::Result<()> {
 
 /// Files of `paths`, directories expanded to their `*.log` / `*.log.gz` files (sorted).
 pub fn collect_logs(paths: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
-    let mut out = Vec::new();
-    for p in paths {
-        if p.is_dir() {
-            let mut files: Vec<PathBuf> = std::fs::read_dir(p)
-                .with_context(|| format!("{}: cannot read directory", p.display()))?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|f| {
-                    let n = f.file_name().and_then(|n| n.to_str()).unwrap_or("");
-                    n.ends_with(".log") || n.ends_with(".log.gz")
-                })
-                .collect();
-            files.sort();
-            ensure!(
-                !files.is_empty(),
-                "{}: no .log or .log.gz files in directory",
-                p.display()
-            );
-            out.extend(files);
-        } else if p.exists() {
-            out.push(p.clone());
-        } else {
-            bail!("{}: no such file or directory", p.display());
-        }
-    }
-    Ok(out)
+    crate::eval::collect_files(paths, ".log or .log.gz files", |f| {
+        let n = f.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        n.ends_with(".log") || n.ends_with(".log.gz")
+    })
 }
 
 /// The settings of the samplers and baselines.

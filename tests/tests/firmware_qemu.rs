@@ -5,24 +5,11 @@
 //! `scripts/test-all.sh` runs first). Without them the test is skipped with a message — unless
 //! `OGM_REQUIRE_FIRMWARE=1`, when it fails. Runtime: ~10 s after the firmware build.
 
-use std::io::Write as _;
-
-use host_sim::firmware::{print_report, run, toolchain_missing, FirmwareArgs};
+use host_sim::firmware::{print_report, run, FirmwareArgs};
 
 #[test]
 fn firmware_in_qemu_streams_the_hosts_map() {
-    if let Some(why) = toolchain_missing() {
-        let required = std::env::var("OGM_REQUIRE_FIRMWARE").is_ok_and(|v| v == "1");
-        assert!(
-            !required,
-            "OGM_REQUIRE_FIRMWARE=1 but the firmware cannot be run: {why}"
-        );
-        // Written to stderr directly, not with `eprintln!`, so libtest does not swallow it.
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED firmware_in_qemu_streams_the_hosts_map: {why} \
-             (set OGM_REQUIRE_FIRMWARE=1 to make this an error)"
-        );
+    if !ogm_tests::firmware_available("firmware_in_qemu_streams_the_hosts_map") {
         return;
     }
     let args = FirmwareArgs {

@@ -7,25 +7,8 @@
 //! Needs the firmware toolchain and QEMU like `firmware_qemu.rs` (skipped without them unless
 //! `OGM_REQUIRE_FIRMWARE=1`). Runtime: ~15 s after the firmware build.
 
-use std::io::Write as _;
-
-use host_sim::firmware::{print_report, run, toolchain_missing, FirmwareArgs};
-
-fn firmware_available(test: &str) -> bool {
-    let Some(why) = toolchain_missing() else {
-        return true;
-    };
-    let required = std::env::var("OGM_REQUIRE_FIRMWARE").is_ok_and(|v| v == "1");
-    assert!(
-        !required,
-        "OGM_REQUIRE_FIRMWARE=1 but the firmware cannot be run: {why}"
-    );
-    let _ = writeln!(
-        std::io::stderr(),
-        "SKIPPED {test}: {why} (set OGM_REQUIRE_FIRMWARE=1 to make this an error)"
-    );
-    false
-}
+use host_sim::firmware::{print_report, run, FirmwareArgs};
+use ogm_tests::firmware_available;
 
 #[test]
 fn one_percent_of_corrupted_uart_bytes_loses_only_the_damaged_packets() {

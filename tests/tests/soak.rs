@@ -23,11 +23,11 @@ use std::cell::Cell;
 use std::io::Write as _;
 
 use host_sim::firmware::{
-    firmware_world, print_report, run, run_config, toolchain_missing, FirmwareArgs, Replay,
-    FIRMWARE_SIZES,
+    firmware_world, print_report, run, run_config, FirmwareArgs, Replay, FIRMWARE_SIZES,
 };
 use host_sim::sim::{simulate, SimConfig};
 use ogm_core::wire::Budget;
+use ogm_tests::firmware_available;
 
 /// Counts this thread's heap allocations (libtest runs tests on several threads).
 struct Counting;
@@ -173,22 +173,6 @@ fn host_soak_100k() {
     let r = host_soak(2942 * 34); // 100 028 scans
     assert!(r.scans >= 100_000);
     check_host(&r);
-}
-
-fn firmware_available(test: &str) -> bool {
-    let Some(why) = toolchain_missing() else {
-        return true;
-    };
-    let required = std::env::var("OGM_REQUIRE_FIRMWARE").is_ok_and(|v| v == "1");
-    assert!(
-        !required,
-        "OGM_REQUIRE_FIRMWARE=1 but the firmware cannot be run: {why}"
-    );
-    let _ = writeln!(
-        std::io::stderr(),
-        "SKIPPED {test}: {why} (set OGM_REQUIRE_FIRMWARE=1 to make this an error)"
-    );
-    false
 }
 
 /// The firmware (`elf`) on `scans` cycled scans.
