@@ -284,13 +284,33 @@ pub fn candidates_into(border: u16, out: &mut [Candidate]) -> (usize, PriorSourc
         }
     }
     if n > 0 {
-        let filled = out.get_mut(..n).unwrap_or(&mut []);
-        filled.sort_unstable_by(|a, b| b.log_prior.cmp(&a.log_prior).then(a.config.cmp(&b.config)));
+        sort_most_likely_first(out.get_mut(..n).unwrap_or(&mut []));
         return (n, PriorSource::Nearby);
     }
     let c = unconditioned(out.len());
     let n = c.iter().zip(out.iter_mut()).map(|(c, o)| *o = c).count();
     (n, PriorSource::Fallback)
+}
+
+/// Sorts by decreasing log-prior, ties by configuration. An insertion sort: `out` holds the
+/// sampler's few candidates (≤ 16), and core's `sort_unstable` would add ~10 KB of flash.
+fn sort_most_likely_first(c: &mut [Candidate]) {
+    let before = |a: &Candidate, b: &Candidate| {
+        (a.log_prior, core::cmp::Reverse(a.config)) > (b.log_prior, core::cmp::Reverse(b.config))
+    };
+    for i in 1..c.len() {
+        let mut j = i;
+        while j > 0 {
+            let (Some(&prev), Some(&cur)) = (c.get(j - 1), c.get(j)) else {
+                break;
+            };
+            if !before(&cur, &prev) {
+                break;
+            }
+            c.swap(j - 1, j);
+            j -= 1;
+        }
+    }
 }
 
 /// The `k` most likely 3×3 configurations without conditioning (`k = 0` is treated as 1), with
@@ -486,6 +506,22 @@ mod tests {
         border_of, centre_of, neighbours_of, patch_of, window_from, Dihedral, BORDERS, CONFIGS,
         CONFIG_FREE, CONFIG_OCCUPIED,
     };
+
+    proptest::proptest! {
+        #[test]
+        fn insertion_sort_orders_like_core_sort(
+            raw in proptest::collection::vec((0u16..512, -40i16..0), 0..24)
+        ) {
+            let mut mine: std::vec::Vec<Candidate> = raw
+                .iter()
+                .map(|&(config, log_prior)| Candidate { config, log_prior })
+                .collect();
+            let mut theirs = mine.clone();
+            sort_most_likely_first(&mut mine);
+            theirs.sort_by(|a, b| b.log_prior.cmp(&a.log_prior).then(a.config.cmp(&b.config)));
+            proptest::prop_assert_eq!(mine, theirs);
+        }
+    }
 
     /// Rounding bound on the probability sum of `n` entries each rounded by ≤ ½ LSB.
     fn sum_tolerance(n: usize) -> f64 {
