@@ -82,6 +82,10 @@ pub struct FirmwareArgs {
     /// Marginal-count tiles streamed per scan.
     #[arg(long, default_value_t = 8)]
     pub count_tiles_per_scan: u16,
+    /// Sweeps of a sampler tile per visit (more: the tile's ray gather is shared by more patch
+    /// updates; fewer: the sampler moves over the map sooner). Default: `RunConfig::paper`'s.
+    #[arg(long)]
+    pub visit_sweeps: Option<u8>,
     /// Mix garbage into the input (the firmware must skip it; the comparison still holds).
     #[arg(long)]
     pub garbage: bool,
@@ -134,6 +138,7 @@ impl Default for FirmwareArgs {
             fixed_updates: None,
             tiles_per_scan: 8,
             count_tiles_per_scan: 8,
+            visit_sweeps: None,
             garbage: false,
             noise_ppm: 0,
             repeat_frames: 1,
@@ -1175,6 +1180,7 @@ pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunC
         (world.origin_m.0 * 1000.0).round() as i32,
         (world.origin_m.1 * 1000.0).round() as i32,
     );
+    let paper = RunConfig::paper(origin, max_range_mm, args.seed, budget);
     RunConfig {
         cell_mm: (world.resolution_m * 1000.0).round() as u32,
         // Online, the map keeps changing under the sampler; a short burn-in lets the marginals
@@ -1182,7 +1188,8 @@ pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunC
         burn_in_sweeps: 2,
         tiles_per_scan: args.tiles_per_scan,
         count_tiles_per_scan: args.count_tiles_per_scan,
-        ..RunConfig::paper(origin, max_range_mm, args.seed, budget)
+        visit_sweeps: args.visit_sweeps.unwrap_or(paper.visit_sweeps),
+        ..paper
     }
 }
 
