@@ -98,7 +98,13 @@ pub struct RayStore<S, R> {
 
 /// Length (Q8 cells) of the vector (dx, dy).
 fn length_q8(dx: i64, dy: i64) -> u64 {
-    ((dx * dx + dy * dy) as u64).saturating_mul(1 << 16).isqrt()
+    let sq = ((dx * dx + dy * dy) as u64).saturating_mul(1 << 16);
+    // The 32-bit square root when it fits (rays under 256 cells): no 64-bit arithmetic on a
+    // 32-bit core, the same root.
+    match u32::try_from(sq) {
+        Ok(v) => u64::from(v.isqrt()),
+        Err(_) => sq.isqrt(),
+    }
 }
 
 /// Length of one Bresenham step of the ray `start → end`, in cells, Q12 (4096 = 1, ≤ √2).
@@ -108,9 +114,14 @@ pub fn step_q12(start: CellCoord, end: CellCoord) -> u32 {
         i64::from(end.y) - i64::from(start.y),
     );
     let n = dx.unsigned_abs().max(dy.unsigned_abs());
-    (length_q8(dx, dy) << 4)
-        .checked_div(n)
-        .map_or(4096, |v| v as u32)
+    let len = length_q8(dx, dy) << 4;
+    // A u32 division (one `udiv` on a Cortex-M4) whenever the operands fit, as for any ray
+    // inside a map of up to ~2 900 cells a side; the same quotient as the u64 one.
+    match (u32::try_from(len), u32::try_from(n)) {
+        (Ok(a), Ok(b)) => a.checked_div(b),
+        _ => len.checked_div(n).map(|v| v as u32),
+    }
+    .unwrap_or(4096)
 }
 
 impl<S, R> RayStore<S, R>
@@ -225,13 +236,17 @@ where
         if n == 0 {
             return 0;
         }
-        // steps = range_cells / step_len = mm / cell_mm · 4096 / step_q12
-        let num = u128::from(range_mm) * 16 * 4096;
-        let den = u128::from(self.geometry.cell_mm()) * u128::from(geom.step_q12.max(1));
-        let z = (num / den)
-            .min(u128::from(n) * 16)
-            .min(u128::from(NONE - 1));
-        z as u16
+        // steps = range_cells / step_len = mm / cell_mm · 4096 / step_q12. num < 2^48 and
+        // den < 2^45 fit a u64; ranges under 65.5 m with ordinary cells fit a u32, one `udiv`
+        // on a Cortex-M4 instead of a library call (same quotient either way).
+        let num = u64::from(range_mm) << 16;
+        let den = u64::from(self.geometry.cell_mm()) * u64::from(geom.step_q12.max(1));
+        let z = match (u32::try_from(num), u32::try_from(den)) {
+            (Ok(a), Ok(b)) => a.checked_div(b).map(u64::from),
+            _ => num.checked_div(den),
+        }
+        .unwrap_or(u64::MAX);
+        z.min(u64::from(n) * 16).min(u64::from(NONE - 1)) as u16
     }
 
     /// Adds a scan's beams (every `decimation`-th), thinning first if the store is full.
@@ -392,6 +407,36 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    proptest::proptest! {
+        /// The 32-bit fast paths of `step_q12` and `z_q4` give exactly the wide-integer result.
+        #[test]
+        fn narrow_arithmetic_equals_the_wide_reference(
+            dx in -3000i32..3000, dy in -3000i32..3000, range_mm in 0u32..200_000,
+            cell_mm in 1u32..2000,
+        ) {
+            let (start, end) = (CellCoord { x: 7, y: -3 }, CellCoord { x: 7 + dx, y: -3 + dy });
+            let (dx, dy) = (i128::from(dx), i128::from(dy));
+            let n = dx.unsigned_abs().max(dy.unsigned_abs());
+            let len = ((dx * dx + dy * dy) as u128 * 65_536).isqrt() << 4;
+            let want = len.checked_div(n).map_or(4096, |v| v as u32);
+            proptest::prop_assert_eq!(step_q12(start, end), want);
+
+            let g = GridGeometry::new(100, 100, cell_mm, 0, 0).unwrap();
+            let s = RayStore::new(g, cell_mm * 50, 0, [StoredScan::default(); 1], [StoredRay::default(); 1])
+                .unwrap();
+            let geom = RayGeometry { ray: Ray::new(start, end), step_q12: want };
+            let steps = u128::from(geom.ray.steps());
+            let z = if steps == 0 {
+                0
+            } else {
+                (u128::from(range_mm) * 65_536 / (u128::from(cell_mm) * u128::from(want.max(1))))
+                    .min(steps * 16)
+                    .min(u128::from(NONE - 1)) as u16
+            };
+            proptest::prop_assert_eq!(s.z_q4(&geom, range_mm), z);
+        }
+    }
 
     fn store(scans: usize, rays: usize) -> RayStore<Vec<StoredScan>, Vec<StoredRay>> {
         let g = GridGeometry::new(100, 100, 100, 0, 0).unwrap();
