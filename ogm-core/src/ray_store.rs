@@ -246,7 +246,7 @@ where
             _ => num.checked_div(den),
         }
         .unwrap_or(u64::MAX);
-        z.min(u64::from(n) * 16).min(u64::from(NONE - 1)) as u16
+        z.min(n.saturating_mul(16)).min(u64::from(NONE - 1)) as u16
     }
 
     /// Adds a scan's beams (every `decimation`-th), thinning first if the store is full.
