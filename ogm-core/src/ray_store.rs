@@ -115,8 +115,8 @@ pub fn step_q12(start: CellCoord, end: CellCoord) -> u32 {
     );
     let n = dx.unsigned_abs().max(dy.unsigned_abs());
     let len = length_q8(dx, dy) << 4;
-    // A u32 division (one `udiv` on a Cortex-M4) whenever the operands fit, as for any ray
-    // inside a map of up to ~2 900 cells a side; the same quotient as the u64 one.
+    // A u32 division (one `udiv` on a Cortex-M4) whenever the operands fit (rays shorter than
+    // 2^20 cells); the same quotient as the u64 one.
     match (u32::try_from(len), u32::try_from(n)) {
         (Ok(a), Ok(b)) => a.checked_div(b),
         _ => len.checked_div(n).map(|v| v as u32),
