@@ -154,7 +154,7 @@ pub struct RunConfig {
     pub max_candidates: u8,
     /// Sampler tiles are 2^this cells square.
     pub sampler_tile_shift: u8,
-    /// Sweeps of a tile per visit.
+    /// Sweeps of a tile per visit (0 counts as 1).
     pub visit_sweeps: u8,
     /// Sampler work per scan.
     pub budget: Budget,

@@ -129,7 +129,7 @@ pub struct SamplerConfig {
     pub init_threshold: LogOdds,
     /// Tiles are 2^`tile_shift` cells square (2 ..= 12).
     pub tile_shift: u8,
-    /// Length of a tile visit, in sweeps of the tile (tile cells / L updates each).
+    /// Length of a tile visit, in sweeps of the tile (tile cells / L updates each; 0 counts as 1).
     pub visit_sweeps: u8,
     /// Blocks per side of the tile visit's ray index (1 ..= [`MAX_BLOCK_GRID`]); the `blocks`
     /// buffer needs [`block_words`]`(local capacity, block_grid)` words. Finer is faster and
