@@ -187,9 +187,9 @@ impl RunConfig {
             burn_in_sweeps: 10,
             max_candidates: 16,
             sampler_tile_shift: 4,
-            // 8 sweeps share each tile's ray gather: on the firmware's simulated runs (seeds
-            // 1-3, 6.4 ms budget) 2 475 instructions per patch instead of 4 705 with 2, and
-            // online max F1 0.72 instead of 0.59 (docs/firmware.md, "Figures").
+            // 8 sweeps share each tile's ray gather: on the firmware's simulated run (6.4 ms
+            // budget) 2 475 instructions per patch instead of 4 705 with 2 (seed 1), and online
+            // max F1 0.72 instead of 0.59 (mean of seeds 1-3; docs/firmware.md, "Figures").
             visit_sweeps: 8,
             budget,
             tiles_per_scan: 8,
