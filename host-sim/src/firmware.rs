@@ -934,7 +934,16 @@ fn run_qemu(
     stream.set_nonblocking(false)?;
     let mut writer = stream.try_clone()?;
     let data = input.to_vec();
-    let writer = std::thread::spawn(move || writer.write_all(&data));
+    // Send only once the firmware has spoken (its Hello): its UART is initialised by then.
+    // Bytes that arrive earlier can meet the init's dummy read of the data register (board
+    // `Uart::new`, which QEMU needs to start delivering input) and be lost: seen once in ~20
+    // noisy-link runs as a lost first frame delimiter.
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
+    let writer = std::thread::spawn(move || match ready_rx.recv() {
+        Ok(()) => writer.write_all(&data),
+        Err(_) => Ok(()), // the firmware never spoke; the reader reports it
+    });
+    let mut ready = Some(ready_tx);
     let mut reader = stream;
     reader.set_read_timeout(Some(Duration::from_millis(200)))?;
     let mut out = Vec::new();
@@ -944,7 +953,12 @@ fn run_qemu(
     loop {
         match reader.read(&mut buf) {
             Ok(0) => break,
-            Ok(n) => out.extend_from_slice(&buf[..n]),
+            Ok(n) => {
+                out.extend_from_slice(&buf[..n]);
+                if let Some(go) = ready.take() {
+                    let _ = go.send(());
+                }
+            }
             Err(e)
                 if matches!(
                     e.kind(),
@@ -988,6 +1002,7 @@ fn run_qemu(
         }
     }
     let secs = t0.elapsed().as_secs_f64();
+    drop(ready);
     let _ = writer.join();
     let _ = std::fs::remove_dir_all(&dir);
     Ok((out, status, secs))
