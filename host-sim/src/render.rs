@@ -207,8 +207,9 @@ pub fn side_by_side_png<S: AsRef<str>>(
     save_png(path, img)
 }
 
-/// Series colours, cycled.
-const PALETTE: [RGBColor; 8] = [
+/// Series colours, cycled (also the baseline plots'); ten, so eval-sim's nine methods get
+/// distinct colours.
+pub(crate) const PALETTE: [RGBColor; 10] = [
     RGBColor(31, 119, 180),
     RGBColor(214, 39, 40),
     RGBColor(44, 160, 44),
@@ -217,6 +218,8 @@ const PALETTE: [RGBColor; 8] = [
     RGBColor(140, 86, 75),
     RGBColor(227, 119, 194),
     RGBColor(23, 190, 207),
+    RGBColor(127, 127, 127),
+    RGBColor(188, 189, 34),
 ];
 
 /// Draws unit-square line plots (one series per curve, with a legend) into an SVG string.
@@ -270,7 +273,8 @@ fn line_plot_svg(
     Ok(svg)
 }
 
-fn write_svg(path: &Path, svg: &str) -> Result<()> {
+/// Writes an SVG string to `path` (errors name the file).
+pub(crate) fn write_svg(path: &Path, svg: &str) -> Result<()> {
     std::fs::write(path, svg).with_context(|| format!("writing SVG {}", path.display()))
 }
 

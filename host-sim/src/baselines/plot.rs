@@ -10,21 +10,10 @@ use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 pub use plotters::prelude::SeriesLabelPosition;
 use plotters::prelude::*;
 
+use crate::render::{write_svg, PALETTE};
+
 /// Size of the plots, in pixels.
 pub const PLOT_SIZE: (u32, u32) = (900, 600);
-
-const PALETTE: [RGBColor; 10] = [
-    RGBColor(31, 119, 180),
-    RGBColor(214, 39, 40),
-    RGBColor(44, 160, 44),
-    RGBColor(255, 127, 14),
-    RGBColor(148, 103, 189),
-    RGBColor(140, 86, 75),
-    RGBColor(227, 119, 194),
-    RGBColor(23, 190, 207),
-    RGBColor(127, 127, 127),
-    RGBColor(188, 189, 34),
-];
 
 /// One line of a plot.
 pub struct Series<'a> {
@@ -36,10 +25,6 @@ pub struct Series<'a> {
     pub markers: bool,
     /// Dashed (drawn as short segments) instead of solid.
     pub dashed: bool,
-}
-
-fn write(path: &Path, svg: &str) -> Result<()> {
-    std::fs::write(path, svg).with_context(|| format!("writing SVG {}", path.display()))
 }
 
 /// Draws `series` into an SVG string over the given axes.
@@ -194,7 +179,7 @@ pub fn energy_vs_time_svg(
         SeriesLabelPosition::UpperRight,
     )
     .with_context(|| format!("plotting {}", path.display()))?;
-    write(path, &svg)
+    write_svg(path, &svg)
 }
 
 /// Per-cell occupancy probabilities against the cell index.
@@ -217,7 +202,7 @@ pub fn marginals_svg(
         legend_at,
     )
     .with_context(|| format!("plotting {}", path.display()))?;
-    write(path, &svg)
+    write_svg(path, &svg)
 }
 
 /// Summed KL divergence against sweeps, both axes logarithmic.
@@ -248,5 +233,5 @@ pub fn kl_vs_sweeps_svg(path: impl AsRef<Path>, title: &str, series: &[Series]) 
         SeriesLabelPosition::UpperRight,
     )
     .with_context(|| format!("plotting {}", path.display()))?;
-    write(path, &svg)
+    write_svg(path, &svg)
 }
