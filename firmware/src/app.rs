@@ -23,7 +23,7 @@ use ogm_core::wire::{
     self, Budget, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello, Layer, LinkCounters,
     RunConfig, SamplerReport, ScanReport, StoreReport, Tile,
 };
-use ogm_core::{Beam, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose, Range};
+use ogm_core::{Beam, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose};
 
 use crate::board::{self, Timer, TICK_HZ};
 use crate::memory::{self, MapBuffers, BLOCK_WORDS, CELLS, MARK_WORDS, SAMPLE_WORDS};
@@ -518,18 +518,8 @@ fn mark_dirty(
     pose: &Pose,
     beams: &[Beam],
 ) {
-    let c = g.cell_of_pose(pose);
-    let (mut x0, mut y0, mut x1, mut y1) = (c.x, c.y, c.x, c.y);
-    for b in beams {
-        let r = match b.range {
-            Range::Hit(mm) if mm < cfg.min_range_mm => continue,
-            Range::Hit(mm) if mm < cfg.max_range_mm => mm,
-            _ => cfg.max_range_mm,
-        };
-        let (x, y) = pose.beam_end(b.angle, r);
-        let e = g.cell_of_point(x, y);
-        (x0, y0, x1, y1) = (x0.min(e.x), y0.min(e.y), x1.max(e.x), y1.max(e.y));
-    }
+    let (lo, hi) = ogm_core::mapper::scan_box(g, cfg, pose, beams);
+    let (x0, y0, x1, y1) = (lo.x, lo.y, hi.x, hi.y);
     let (w, h) = (i32::from(g.width()), i32::from(g.height()));
     if x1 < 0 || y1 < 0 || x0 >= w || y0 >= h {
         return;

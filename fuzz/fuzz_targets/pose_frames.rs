@@ -18,7 +18,7 @@ use ogm_core::mapper::marks_len;
 use ogm_core::pipeline::insert_and_seed;
 use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
 use ogm_core::wire::{self, Budget, HostMsg, RunConfig, WirePose, MAX_HOST_FRAME};
-use ogm_core::{Beam, LogOdds, LogOddsGrid, Mapper, Range, ScanBuf};
+use ogm_core::{LogOdds, LogOddsGrid, Mapper, ScanBuf};
 
 const W: u16 = 64;
 const H: u16 = 64;
@@ -301,23 +301,10 @@ fuzz_target!(|items: Vec<Item>| {
             if let Budget::Fixed { updates } = config.budget {
                 gibbs.step(store, updates.min(256));
             }
-            // The firmware's `mark_dirty`: the box around the pose and every beam end.
-            let g = *mapper.grid().geometry();
-            let cfg = *mapper.config();
-            let c = g.cell_of_pose(&pose);
-            let (mut x0, mut y0, mut x1, mut y1) = (c.x, c.y, c.x, c.y);
-            for b in beams {
-                let r = match b.range {
-                    Range::Hit(mm) if mm < cfg.min_range_mm => continue,
-                    Range::Hit(mm) if mm < cfg.max_range_mm => mm,
-                    _ => cfg.max_range_mm,
-                };
-                let (x, y) = pose.beam_end(b.angle, r);
-                let e = g.cell_of_point(x, y);
-                (x0, y0, x1, y1) = (x0.min(e.x), y0.min(e.y), x1.max(e.x), y1.max(e.y));
-            }
-            assert!(x0 <= x1 && y0 <= y1);
-            let _: &[Beam] = beams;
+            // The firmware's `mark_dirty` box (the pose and every beam end).
+            let (lo, hi) =
+                ogm_core::mapper::scan_box(mapper.grid().geometry(), mapper.config(), &pose, beams);
+            assert!(lo.x <= hi.x && lo.y <= hi.y);
         }
         Step::Finish | Step::Error(_) => {}
     });

@@ -244,6 +244,35 @@ fn beam_extent(cfg: &MapperConfig, beam: &Beam) -> Option<(u32, bool)> {
     }
 }
 
+/// The box of cells a scan can change under the beam model, as inclusive `(min, max)` corners:
+/// the pose's cell and the end cell of every beam the mapper uses (traced to the maximum range
+/// for no-returns), inside the grid or not. The firmware streams the tiles it covers.
+pub fn scan_box(
+    g: &GridGeometry,
+    cfg: &MapperConfig,
+    pose: &Pose,
+    beams: &[Beam],
+) -> (CellCoord, CellCoord) {
+    let c = g.cell_of_pose(pose);
+    let (mut lo, mut hi) = (c, c);
+    for b in beams {
+        let Some((range, _)) = beam_extent(cfg, b) else {
+            continue;
+        };
+        let (x, y) = pose.beam_end(b.angle, range);
+        let e = g.cell_of_point(x, y);
+        lo = CellCoord {
+            x: lo.x.min(e.x),
+            y: lo.y.min(e.y),
+        };
+        hi = CellCoord {
+            x: hi.x.max(e.x),
+            y: hi.y.max(e.y),
+        };
+    }
+    (lo, hi)
+}
+
 /// Classifies one scan into per-cell updates, calling `sink(index, update)` at most once per
 /// cell, hits first. `marks` must hold at least `marks_len(geometry.len())` zeroed words and is
 /// left zeroed. Shared by the fixed-point mapper and the f64 reference.
@@ -689,6 +718,37 @@ mod tests {
             };
             prop_assert_eq!(run(true), run(false));
         }
+    }
+
+    /// The scan box: the pose's cell and the used beams' end cells (no-returns and ranges past
+    /// the maximum at the maximum range; beams below the minimum range ignored).
+    #[test]
+    fn scan_box_covers_the_pose_and_the_used_beam_ends() {
+        // 100 mm cells, cell (0, 0) at the origin; pose in cell (5, 5).
+        let g = GridGeometry::new(20, 20, 100, 0, 0).unwrap();
+        let mut cfg = MapperConfig::new(1_000);
+        cfg.min_range_mm = 100;
+        let pose = Pose {
+            x_mm: 550,
+            y_mm: 550,
+            heading: Angle(0),
+        };
+        let beam = |deg: f64, range| Beam {
+            angle: Angle::from_degrees(deg),
+            range,
+        };
+        let beams = [
+            beam(0.0, Range::Hit(300)),      // +x to cell 8
+            beam(90.0, Range::NoReturn),     // +y to the maximum range: cell 15
+            beam(180.0, Range::Hit(50_000)), // -x, clamped to 1 000 mm: cell -5
+            beam(270.0, Range::Hit(50)),     // below the minimum range: ignored
+        ];
+        let (lo, hi) = scan_box(&g, &cfg, &pose, &beams);
+        assert_eq!((lo.x, lo.y, hi.x, hi.y), (-5, 5, 8, 15));
+        assert_eq!(
+            scan_box(&g, &cfg, &pose, &[]),
+            (CellCoord { x: 5, y: 5 }, CellCoord { x: 5, y: 5 })
+        );
     }
 
     /// Rays so long that the walk falls back to 64-bit state: 1 mm cells, a pose near the far
