@@ -90,6 +90,13 @@ run_qemu() {
         *) die "unknown run option: $1" ;;
         esac
     done
+    # FIRMWARE_QEMU_EXTRA: more QEMU arguments, e.g. "-d in_asm,exec,nochain -D FILE" to count
+    # instructions per function (scripts/qemu-profile.sh).
+    if [ -n "${FIRMWARE_QEMU_EXTRA:-}" ]; then
+        local more=()
+        read -r -a more <<<"$FIRMWARE_QEMU_EXTRA"
+        extra+=("${more[@]}")
+    fi
     local uart1_file=""
     if [ -z "$uart1" ]; then
         uart1_file="$out/uart1.out"

@@ -9,7 +9,7 @@
 #   bash scripts/fuzz.sh --jobs 2 ...          two targets at a time (one core each)
 #   bash scripts/fuzz.sh --list                the targets
 #
-# Targets: ld06 (LD06 parser and reader), wire_frame (postcard/COBS frame decoders, robot
+# Targets: ld06 (LD06 parser and reader), rplidar (RPLIDAR A1/A2 parser and reader), wire_frame (postcard/COBS frame decoders, robot
 # demultiplexer, host stream decoder), pose_frames (host frames incl. poses and settings → link →
 # insert_and_seed → sampler), carmen (CARMEN log reader), map_loader (PNG/PGM/map YAML decoding).
 #
@@ -27,7 +27,7 @@
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 FUZZ="$ROOT/fuzz"
-ALL=(ld06 wire_frame pose_frames carmen map_loader)
+ALL=(ld06 rplidar wire_frame pose_frames carmen map_loader)
 CARGO_FUZZ_VERSION=0.13.2
 
 say() { printf '[fuzz] %s\n' "$*" >&2; }

@@ -493,7 +493,7 @@ impl App {
 /// Sampler updates for one scan; `t0` = when the scan was complete.
 fn run_budget(m: &mut Machine, timer: &Timer, t0: u32) -> u32 {
     match m.config.budget {
-        Budget::Fixed { updates } => m.gibbs.step(&mut m.store, updates),
+        Budget::Fixed { updates } => m.gibbs.step(&mut m.store, m.mapper.grid().cells(), updates),
         Budget::Time {
             period_us,
             max_updates,
@@ -502,7 +502,11 @@ fn run_budget(m: &mut Machine, timer: &Timer, t0: u32) -> u32 {
                 .min(u64::from(u32::MAX)) as u32;
             let mut done = 0u32;
             while done < max_updates && timer.now().wrapping_sub(t0) < period {
-                done += m.gibbs.step(&mut m.store, CHUNK.min(max_updates - done));
+                done += m.gibbs.step(
+                    &mut m.store,
+                    m.mapper.grid().cells(),
+                    CHUNK.min(max_updates - done),
+                );
             }
             done
         }

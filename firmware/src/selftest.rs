@@ -50,7 +50,7 @@ pub fn run<W: Write, const N: usize>(
     timer: &Timer,
     scan: &mut ScanBuf<N>,
 ) -> i32 {
-    let config = RunConfig::paper(
+    let config = RunConfig::robot(
         (-6400, -6400),
         MAX_RANGE_MM,
         1,

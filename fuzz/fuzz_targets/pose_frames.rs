@@ -299,7 +299,7 @@ fuzz_target!(|items: Vec<Item>| {
             scans += 1;
             let _ = insert_and_seed(mapper, store, gibbs, &pose, beams);
             if let Budget::Fixed { updates } = config.budget {
-                gibbs.step(store, updates.min(256));
+                gibbs.step(store, mapper.grid().cells(), updates.min(256));
             }
             // The firmware's `mark_dirty` box (the pose and every beam end).
             let (lo, hi) =

@@ -83,7 +83,7 @@ pub struct FirmwareArgs {
     #[arg(long, default_value_t = 8)]
     pub count_tiles_per_scan: u16,
     /// Sweeps of a sampler tile per visit (more: the tile's ray gather is shared by more patch
-    /// updates; fewer: the sampler moves over the map sooner). Default: `RunConfig::paper`'s.
+    /// updates; fewer: the sampler moves over the map sooner). Default: `RunConfig::robot`'s.
     #[arg(long)]
     pub visit_sweeps: Option<u8>,
     /// Mix garbage into the input (the firmware must skip it; the comparison still holds).
@@ -124,6 +124,87 @@ pub struct FirmwareArgs {
     /// Only decode a captured map stream (e.g. firmware/target/qemu/uart1.out) and summarise it.
     #[arg(long)]
     pub decode: Option<PathBuf>,
+    /// The sampler's settings (default: the robot's, `RunConfig::robot`).
+    #[command(flatten)]
+    pub sampler: SamplerArgs,
+}
+
+/// Sampler settings sent to the robot (each defaults to `RunConfig::robot`'s).
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct SamplerArgs {
+    /// Measurement term: rays, evidence or hybrid.
+    #[arg(long, value_parser = parse_data_term)]
+    pub data: Option<ogm_core::gibbs::DataTerm>,
+    /// Evidence gain, Q8 (256 = the log-odds as they are).
+    #[arg(long)]
+    pub evidence_gain: Option<u16>,
+    /// Relative scale of free evidence, Q8.
+    #[arg(long)]
+    pub evidence_free: Option<u16>,
+    /// Offer the evidence's own configuration as a candidate (true/false).
+    #[arg(long)]
+    pub data_candidate: Option<bool>,
+    /// Marginal estimator: `counts`, or `rb:SHIFT` / `rb:SHIFT:reset` (Rao-Blackwellised,
+    /// averaging over 2^SHIFT updates of a cell; `reset` restarts changed cells).
+    #[arg(long, value_parser = parse_estimator)]
+    pub estimator: Option<ogm_core::gibbs::Estimator>,
+    /// Tile visits (of 256) that go to changed tiles.
+    #[arg(long)]
+    pub hot_share: Option<u8>,
+}
+
+impl SamplerArgs {
+    /// `config` with these settings applied.
+    pub fn apply(&self, config: RunConfig) -> RunConfig {
+        RunConfig {
+            data: self.data.unwrap_or(config.data),
+            evidence_gain_q8: self.evidence_gain.unwrap_or(config.evidence_gain_q8),
+            evidence_free_q8: self.evidence_free.unwrap_or(config.evidence_free_q8),
+            data_candidate: self.data_candidate.unwrap_or(config.data_candidate),
+            estimator: self.estimator.unwrap_or(config.estimator),
+            hot_share: self.hot_share.unwrap_or(config.hot_share),
+            ..config
+        }
+    }
+}
+
+/// `rays`, `evidence` or `hybrid`.
+pub fn parse_data_term(s: &str) -> Result<ogm_core::gibbs::DataTerm, String> {
+    use ogm_core::gibbs::DataTerm;
+    match s {
+        "rays" => Ok(DataTerm::Rays),
+        "evidence" => Ok(DataTerm::Evidence),
+        "hybrid" => Ok(DataTerm::Hybrid),
+        _ => Err(format!("`{s}`: expected rays, evidence or hybrid")),
+    }
+}
+
+/// `counts`, `rb:SHIFT` or `rb:SHIFT:reset`.
+pub fn parse_estimator(s: &str) -> Result<ogm_core::gibbs::Estimator, String> {
+    use ogm_core::gibbs::Estimator;
+    let parts: Vec<&str> = s.split(':').collect();
+    match parts.as_slice() {
+        ["counts"] => Ok(Estimator::Counts),
+        ["rb", shift, rest @ ..] => {
+            let shift: u8 = shift
+                .parse()
+                .ok()
+                .filter(|s| (1..=15).contains(s))
+                .ok_or_else(|| format!("`{s}`: SHIFT must be 1 to 15"))?;
+            let reset_on_change = match rest {
+                [] => false,
+                ["reset"] => true,
+                _ => return Err(format!("`{s}`: expected rb:SHIFT or rb:SHIFT:reset")),
+            };
+            Ok(Estimator::RaoBlackwell {
+                shift,
+                reset_on_change,
+            })
+        }
+        _ => Err(format!(
+            "`{s}`: expected counts, rb:SHIFT or rb:SHIFT:reset"
+        )),
+    }
 }
 
 impl Default for FirmwareArgs {
@@ -144,6 +225,7 @@ impl Default for FirmwareArgs {
             repeat_frames: 1,
             soak_scans: None,
             timeout: 300,
+            sampler: SamplerArgs::default(),
             accuracy: false,
             host_only: false,
             runs: 1,
@@ -329,11 +411,15 @@ impl<N: Count> Replay<N> {
             .map_err(|x| e("geometry", x))?;
         let grid = LogOddsGrid::new(geometry, vec![LogOdds::ZERO; geometry.len()])
             .map_err(|x| e("grid", x))?;
-        let mapper = Mapper::new(
-            grid,
-            vec![0; marks_len(geometry.len())],
-            config.mapper_config(),
-        )
+        let mapper = Mapper::new(grid, vec![0; marks_len(geometry.len())], {
+            let mut mc = config.mapper_config();
+            if let Ok(p) = std::env::var("OGM_PFREE") {
+                mc.model =
+                    ogm_core::sensor_model::InverseSensorModel::beam(0.8, p.parse().unwrap(), 0.5)
+                        .unwrap();
+            }
+            mc
+        })
         .map_err(|x| e("mapper", x))?;
         let forward = config.forward_model().map_err(|x| e("forward model", x))?;
         let mut store = RayStore::new(
@@ -395,7 +481,8 @@ impl<N: Count> Replay<N> {
             pose,
             beams,
         );
-        self.gibbs.step(&mut self.store, updates);
+        self.gibbs
+            .step(&mut self.store, self.mapper.grid().cells(), updates);
         let ok = match inserted {
             Ok((s, range)) => {
                 r.set_scan_stats(&s);
@@ -1195,17 +1282,14 @@ pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunC
         (world.origin_m.0 * 1000.0).round() as i32,
         (world.origin_m.1 * 1000.0).round() as i32,
     );
-    let paper = RunConfig::paper(origin, max_range_mm, args.seed, budget);
-    RunConfig {
+    let robot = RunConfig::robot(origin, max_range_mm, args.seed, budget);
+    args.sampler.apply(RunConfig {
         cell_mm: (world.resolution_m * 1000.0).round() as u32,
-        // Online, the map keeps changing under the sampler; a short burn-in lets the marginals
-        // start within the first few scans (a sweep is 7282 patch updates on 256 × 256).
-        burn_in_sweeps: 2,
         tiles_per_scan: args.tiles_per_scan,
         count_tiles_per_scan: args.count_tiles_per_scan,
-        visit_sweeps: args.visit_sweeps.unwrap_or(paper.visit_sweeps),
-        ..paper
-    }
+        visit_sweeps: args.visit_sweeps.unwrap_or(robot.visit_sweeps),
+        ..robot
+    })
 }
 
 /// Runs `host-sim firmware` (see the module docs).
@@ -1327,10 +1411,16 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
             .map(|s| groups.scans[s].report.sampler_updates)
             .collect();
     }
+    if args.host_only {
+        // No firmware to report its update counts: the fixed number per scan, if given.
+        if let Some(n) = args.fixed_updates {
+            updates_used = vec![n; input.scans];
+        }
+    }
     if args.accuracy {
-        let online = (!args.host_only && !updates_used.is_empty())
-            .then_some((input.bytes.as_slice(), updates_used.as_slice()));
-        report.accuracy = Some(accuracy(args, &world, &sim, &scans, online)?);
+        let online =
+            (!updates_used.is_empty()).then_some((input.bytes.as_slice(), updates_used.as_slice()));
+        report.accuracy = Some(accuracy(args, &config, &world, &sim, &scans, online)?);
     }
     if let Some(out) = &args.out {
         std::fs::create_dir_all(out)?;
@@ -1348,6 +1438,7 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
 /// with firmware sizes and unbounded.
 fn accuracy(
     args: &FirmwareArgs,
+    config: &RunConfig,
     world: &World,
     sim: &crate::sim::SimRun,
     scans: &[crate::explore::ScanRecord],
@@ -1369,8 +1460,17 @@ fn accuracy(
         tile_visits: 0,
         thinnings: 0,
     };
-    let fw_cfg = crate::eval::with_firmware_bounds(SamplingConfig::default());
-    let host_cfg = SamplingConfig::default();
+    // The robot's sampler, offline.
+    let host_cfg = SamplingConfig {
+        data: config.data,
+        evidence_gain_q8: config.evidence_gain_q8,
+        evidence_free_q8: config.evidence_free_q8,
+        data_candidate: config.data_candidate,
+        estimator: config.estimator,
+        hot_share: config.hot_share,
+        ..SamplingConfig::default()
+    };
+    let fw_cfg = crate::eval::with_firmware_bounds(host_cfg);
     for run in 0..acc.runs {
         let (w, s);
         let (world, sim, scans) = if run == 0 {

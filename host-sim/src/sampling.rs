@@ -6,8 +6,8 @@ use std::time::Instant;
 use anyhow::anyhow;
 use ogm_core::forward_model::ForwardModel;
 use ogm_core::gibbs::{
-    block_words, BorderPrior, Buffers, ConstantCellPrior, Gibbs, LocalRay, PatchPrior,
-    SamplerConfig, SamplerStats, UnconditionedPrior,
+    block_words, BorderPrior, Buffers, ConstantCellPrior, DataTerm, Estimator, Gibbs, LocalRay,
+    PatchPrior, SamplerConfig, SamplerStats, UnconditionedPrior,
 };
 use ogm_core::ray_store::{RayStore, StoreStats, StoredRay, StoredScan};
 use ogm_core::{GridGeometry, LogOdds, MapperConfig};
@@ -86,6 +86,18 @@ pub struct SamplingConfig {
     pub init_threshold: i16,
     /// Buffer bounds.
     pub bounds: Bounds,
+    /// The measurement term.
+    pub data: DataTerm,
+    /// Evidence gain, Q8.
+    pub evidence_gain_q8: u16,
+    /// Relative scale of free evidence, Q8.
+    pub evidence_free_q8: u16,
+    /// Offer the evidence's configuration as a candidate.
+    pub data_candidate: bool,
+    /// Marginal estimator.
+    pub estimator: Estimator,
+    /// Change-driven share of tile visits, of 256.
+    pub hot_share: u8,
 }
 
 impl Default for SamplingConfig {
@@ -102,6 +114,12 @@ impl Default for SamplingConfig {
             block_grid: 16,
             init_threshold: -1,
             bounds: Bounds::default(),
+            data: DataTerm::Rays,
+            evidence_gain_q8: 256,
+            evidence_free_q8: 256,
+            data_candidate: false,
+            estimator: Estimator::Counts,
+            hot_share: 0,
         }
     }
 }
@@ -161,6 +179,7 @@ type Store = RayStore<Vec<StoredScan>, Vec<StoredRay>>;
 
 struct Session<P, N: ogm_core::gibbs::Count> {
     store: Store,
+    map: Vec<LogOdds>,
     gibbs: Gibbs<P, Vec<u32>, Vec<N>, Vec<LocalRay>, Vec<u32>, N>,
     sweep: u32,
 }
@@ -168,7 +187,7 @@ struct Session<P, N: ogm_core::gibbs::Count> {
 impl<P: PatchPrior, N: ogm_core::gibbs::Count> Sweeper for Session<P, N> {
     fn sweeps(&mut self, n: u32) {
         for _ in 0..n {
-            self.gibbs.step(&mut self.store, self.sweep);
+            self.gibbs.step(&mut self.store, &self.map, self.sweep);
         }
     }
     fn marginals(&self) -> Vec<f64> {
@@ -287,6 +306,13 @@ fn build<P: PatchPrior, N: ogm_core::gibbs::Count>(
         visit_sweeps: cfg.visit_sweeps,
         block_grid: cfg.block_grid,
         seed,
+        data: cfg.data,
+        evidence_gain_q8: cfg.evidence_gain_q8,
+        evidence_free_q8: cfg.evidence_free_q8,
+        data_candidate: cfg.data_candidate,
+        floor_log_prior: ogm_core::gibbs::FLOOR_LOG_PRIOR,
+        estimator: cfg.estimator,
+        hot_share: cfg.hot_share,
     };
     let local = b.local.unwrap_or(total_rays.clamp(1, 1 << 16));
     let buf = Buffers {
@@ -303,6 +329,7 @@ fn build<P: PatchPrior, N: ogm_core::gibbs::Count>(
     let sweep = (geometry.len() as u32).div_ceil(cells_per_patch);
     Ok(Session {
         store,
+        map: map.to_vec(),
         gibbs,
         sweep,
     })

@@ -51,6 +51,7 @@ pub mod ray;
 pub mod ray_store;
 #[cfg(feature = "reference")]
 pub mod reference;
+pub mod rplidar;
 pub mod sensor_model;
 pub mod wire;
 

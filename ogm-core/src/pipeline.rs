@@ -67,10 +67,12 @@ where
 /// Integrates a scan into the online map *and* an online sampler: inserts it into `mapper`, seeds
 /// every cell this scan observes for the first time (log-odds was exactly 0) in the sampler's
 /// current sample from its new log-odds (occupied iff above the sampler's `init_threshold`),
-/// stores the scan's rays, and marks first-occupied caches stale — of every ray if a cell was
-/// seeded, else of the new rays only (they are recomputed lazily, inside the sampler's bounded
-/// steps, when a tile visit gathers them). Returns the mapper's statistics and the new rays'
-/// range.
+/// tells the sampler which cells changed ([`crate::gibbs::Gibbs::note_changed`]: change-driven
+/// tile visits, estimates restarted), and — when the sampler's data term uses rays — stores the
+/// scan's rays and marks first-occupied caches stale: of every ray if a cell was seeded, else of
+/// the new rays only (they are recomputed lazily, inside the sampler's bounded steps, when a tile
+/// visit gathers them). Returns the mapper's statistics and the new rays' range (empty when no
+/// rays are stored).
 ///
 /// Without seeding, newly observed space would start as whatever the sample said about the
 /// unknown (the border prior rarely flips a consistent all-free region, so walls seen later would
@@ -96,13 +98,20 @@ where
     K: AsRef<[u32]> + AsMut<[u32]>,
 {
     let threshold = gibbs.config().init_threshold;
+    let notify = gibbs.config().hot_share > 0 || gibbs.config().estimator.resets();
     let mut seeded = false;
     let stats = mapper.insert_scan_with(pose, beams, |i, before, after| {
         if before.0 == 0 {
             gibbs.seed(i, after > threshold);
             seeded = true;
         }
+        if notify {
+            gibbs.note_changed(i, after);
+        }
     })?;
+    if !gibbs.config().data.uses_rays() {
+        return Ok((stats, 0..0));
+    }
     let new = store.add_scan(pose, beams);
     let stale = if seeded { 0..usize::MAX } else { new.clone() };
     gibbs.invalidate_rays(store, stale);

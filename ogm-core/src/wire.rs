@@ -28,13 +28,13 @@ use serde::{Deserialize, Serialize};
 use crate::error::Result as CoreResult;
 use crate::forward_model::ForwardModel;
 use crate::geometry::{GridGeometry, Pose};
-use crate::gibbs::{SamplerConfig, SamplerStats};
+use crate::gibbs::{DataTerm, Estimator, SamplerConfig, SamplerStats};
 use crate::mapper::{MapperConfig, ScanStats};
 use crate::ray_store::StoreStats;
 use crate::{Angle, LogOdds};
 
 /// Schema version, the first byte of every frame.
-pub const VERSION: u8 = 1;
+pub const VERSION: u8 = 2;
 
 /// CRC-32/ISO-HDLC (the zlib/Ethernet CRC-32), table driven (1 KiB of flash).
 pub static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
@@ -162,6 +162,18 @@ pub struct RunConfig {
     pub tiles_per_scan: u16,
     /// Marginal-count tiles streamed after each scan (round robin).
     pub count_tiles_per_scan: u16,
+    /// The sampler's measurement term.
+    pub data: DataTerm,
+    /// Scale of the evidence term, Q8 (256 = the log-odds map as it is).
+    pub evidence_gain_q8: u16,
+    /// Relative scale of free evidence, Q8 (`SamplerConfig::evidence_free_q8`).
+    pub evidence_free_q8: u16,
+    /// Offer the evidence's own configuration as a candidate (`SamplerConfig::data_candidate`).
+    pub data_candidate: bool,
+    /// The marginal estimator.
+    pub estimator: Estimator,
+    /// Of every 256 tile visits, how many go to tiles that changed (`SamplerConfig::hot_share`).
+    pub hot_share: u8,
 }
 
 impl RunConfig {
@@ -194,6 +206,38 @@ impl RunConfig {
             budget,
             tiles_per_scan: 8,
             count_tiles_per_scan: 8,
+            data: DataTerm::Rays,
+            evidence_gain_q8: 256,
+            evidence_free_q8: 256,
+            data_candidate: false,
+            estimator: Estimator::Counts,
+            hot_share: 0,
+        }
+    }
+
+    /// The robot's settings (what the firmware runs with when no host configures it, and what
+    /// `host-sim firmware` sends): the paper's grid and forward model, and the sampler made for
+    /// online use on a microcontroller — per-cell evidence instead of rays (no memory that grows
+    /// with the mission, a bounded cost per patch), the evidence's own configuration as a
+    /// candidate, free evidence scaled to the sensor's noise, Rao-Blackwellised estimates
+    /// restarted where the evidence changes, and three quarters of the tile visits where it
+    /// changed. Why each: docs/results.md, "Online sampler".
+    pub fn robot(origin_mm: (i32, i32), max_range_mm: u32, seed: u64, budget: Budget) -> Self {
+        let paper = Self::paper(origin_mm, max_range_mm, seed, budget);
+        RunConfig {
+            data: DataTerm::Evidence,
+            evidence_gain_q8: 512,
+            evidence_free_q8: crate::gibbs::free_evidence_q8(
+                f64::from(paper.sigma_milli_cells) / 1000.0,
+            ),
+            data_candidate: true,
+            estimator: Estimator::RaoBlackwell {
+                shift: 3,
+                reset_on_change: true,
+            },
+            hot_share: 192,
+            burn_in_sweeps: 2,
+            ..paper
         }
     }
 
@@ -239,6 +283,13 @@ impl RunConfig {
             visit_sweeps: self.visit_sweeps,
             seed: self.seed,
             block_grid: firmware_sizes::BLOCK_GRID,
+            data: self.data,
+            evidence_gain_q8: self.evidence_gain_q8,
+            evidence_free_q8: self.evidence_free_q8,
+            data_candidate: self.data_candidate,
+            floor_log_prior: crate::gibbs::FLOOR_LOG_PRIOR,
+            estimator: self.estimator,
+            hot_share: self.hot_share,
         }
     }
 }
@@ -759,6 +810,15 @@ mod tests {
             },
             tiles_per_scan: u16::MAX,
             count_tiles_per_scan: u16::MAX,
+            data: DataTerm::Hybrid,
+            evidence_gain_q8: u16::MAX,
+            evidence_free_q8: u16::MAX,
+            data_candidate: true,
+            estimator: Estimator::RaoBlackwell {
+                shift: u8::MAX,
+                reset_on_change: true,
+            },
+            hot_share: u8::MAX,
         }
     }
 
@@ -819,14 +879,15 @@ mod tests {
                 assert!(r.is_err(), "flip {i}.{bit} undetected");
             }
         }
-        // A frame with version 2 (valid CRC) is refused by version.
-        let mut raw = std::vec![2u8];
+        // A frame with another version (valid CRC) is refused by version.
+        let other = VERSION.wrapping_add(1);
+        let mut raw = std::vec![other];
         raw.extend_from_slice(postcard::to_slice(&m, &mut [0u8; 64]).unwrap());
         let crc = CRC32.checksum(&raw);
         raw.extend_from_slice(&crc.to_le_bytes());
         let mut enc = cobs_encode(&raw);
         let r: Result<HostMsg, _> = decode(&mut enc);
-        assert_eq!(r, Err(WireError::Version(2)));
+        assert_eq!(r, Err(WireError::Version(other)));
         // Trailing bytes after the message are refused.
         let mut raw = std::vec![VERSION];
         raw.extend_from_slice(postcard::to_slice(&m, &mut [0u8; 64]).unwrap());

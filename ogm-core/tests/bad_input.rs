@@ -343,7 +343,7 @@ fn pose_outside_the_map_is_clipped() {
         };
         let (s, _) = insert_and_seed(&mut m, &mut store, &mut gibbs, &pose, &beams).unwrap();
         assert!(s.cells_hit + s.cells_freed <= g.len() as u32);
-        gibbs.step(&mut store, 50);
+        gibbs.step(&mut store, m.grid().cells(), 50);
     }
     let clamp = cfg.mapper_config().clamp;
     assert!(

@@ -141,7 +141,7 @@ fn l1_sampler_converges_to_the_exact_1d_posterior() {
     let mut kls = Vec::new();
     let mut done = 0u32;
     for sweeps in [30u32, 300, 3000, 30000] {
-        s.step(&mut st, (sweeps - done) * K as u32);
+        s.step(&mut st, &[LogOdds::ZERO; K], (sweeps - done) * K as u32);
         done = sweeps;
         let total: f64 = (0..K)
             .map(|k| kl(exact[k], f64::from(s.marginal(k).unwrap())))
@@ -248,8 +248,8 @@ fn fixed_point_conditional_matches_f64_reference() {
         };
         let mut s = sampler(g, ShapesPrior, fm.clone(), cfg);
         s.reset(&map, &mut st).unwrap();
-        s.step(&mut st, 500 * (seed as u32 + 1)); // wander to a random state
-                                                  // The reference starts from the fixed sampler's current sample.
+        s.step(&mut st, &map, 500 * (seed as u32 + 1)); // wander to a random state
+                                                        // The reference starts from the fixed sampler's current sample.
         let state: Vec<LogOdds> = (0..g.len())
             .map(|i| LogOdds(if s.occupied(i) { 1 } else { -1 }))
             .collect();
@@ -270,7 +270,7 @@ fn fixed_point_conditional_matches_f64_reference() {
             for cx in 2..22 {
                 let c = CellCoord { x: cx, y: cy };
                 let (mut a, mut b) = ([(0u16, 0f64); 16], [(0u16, 0f64); 16]);
-                let na = s.conditional(&mut st, c, &mut a);
+                let na = s.conditional(&mut st, &map, c, &mut a);
                 let nb = r.conditional(&st, c, &mut b);
                 assert_eq!(na, nb);
                 for (x, y) in a[..na].iter().zip(&b[..nb]) {
@@ -302,7 +302,7 @@ fn fixed_point_marginals_match_f64_reference_sampler() {
     let mut s = sampler(g, ShapesPrior, fm, cfg);
     s.reset(&map, &mut st).unwrap();
     let sweep = (g.len() as u32).div_ceil(9);
-    s.step(&mut st, sweep * 1020);
+    s.step(&mut st, &map, sweep * 1020);
     let (mut sample, mut counts) = (vec![0u8; g.len()], vec![0u64; g.len()]);
     let mut r = ReferenceGibbs::new(
         g,
@@ -356,7 +356,7 @@ fn online_seeding_follows_first_observations_and_keeps_caches_exact() {
             range: Range::Hit(700),
         })
         .collect();
-    s.step(&mut st, 500);
+    s.step(&mut st, mapper.grid().cells(), 500);
     let (stats, new) = insert_and_seed(&mut mapper, &mut st, &mut s, &pose, &beams).unwrap();
     assert_eq!(new, 0..64);
     assert!(stats.cells_hit > 20 && stats.cells_freed > 50);
@@ -371,7 +371,7 @@ fn online_seeding_follows_first_observations_and_keeps_caches_exact() {
         .rays()
         .iter()
         .all(|r| r.first_occupied == ogm_core::ray_store::STALE));
-    s.step(&mut st, 3000);
+    s.step(&mut st, mapper.grid().cells(), 3000);
     let before: Vec<u16> = st.rays().iter().map(|r| r.first_occupied).collect();
     assert!(before.iter().any(|&f| f != ogm_core::ray_store::STALE));
     s.refresh_rays(&mut st, 0..usize::MAX);
@@ -381,7 +381,7 @@ fn online_seeding_follows_first_observations_and_keeps_caches_exact() {
     }
     // A second scan from the same pose observes nothing new: only its own rays are refreshed,
     // and already-observed cells keep the sampler's state.
-    s.step(&mut st, 2000);
+    s.step(&mut st, mapper.grid().cells(), 2000);
     let sample: Vec<bool> = (0..g.len()).map(|i| s.occupied(i)).collect();
     insert_and_seed(&mut mapper, &mut st, &mut s, &pose, &beams).unwrap();
     assert_eq!(

@@ -213,7 +213,7 @@ pub fn gibbs_l1(
     let mut done = 0u32;
     for &c in checkpoints {
         for _ in done..c {
-            g.step(&mut d.store, CELLS as u32);
+            g.step(&mut d.store, init, CELLS as u32);
         }
         done = done.max(c);
         out.push((

@@ -38,8 +38,11 @@
 //! total) as it goes: the estimate becomes an exponentially-forgetting average over the last
 //! ½–1 × `MAX` sweeps and never overflows.
 
+mod estimate;
+mod evidence;
 mod local;
 mod priors;
+mod schedule;
 mod segment;
 
 use rand_core::{Rng, SeedableRng};
@@ -51,9 +54,13 @@ use crate::forward_model::{ForwardModel, LogLik};
 use crate::geometry::{CellCoord, GridGeometry};
 use crate::ray_store::{RayStore, StoredRay, StoredScan, NONE, STALE};
 use crate::Angle;
+pub use estimate::Estimator;
+use evidence::patch_evidence;
+pub use evidence::{free_evidence_q8, DataTerm, MAX_GAIN_Q8};
 pub use local::{block_words, LocalRay, MAX_BLOCK_GRID};
 use local::{for_each_ray, set_bit, BlockGrid};
 pub use priors::{BorderPrior, ConstantCellPrior, UnconditionedPrior};
+use schedule::HotTiles;
 pub use segment::Segment;
 pub use segment::MAX_STEPS;
 
@@ -69,6 +76,52 @@ pub trait Count: Copy + Default {
     fn get(self) -> u32;
     /// From `u32` (saturating at `MAX`).
     fn set(v: u32) -> Self;
+    /// Moves the value, read as a probability `self / MAX`, by `2^-shift` of the way towards
+    /// `target_q16 / 2^16` (rounded to nearest): the Rao-Blackwellised estimator's update.
+    #[inline]
+    fn ema(self, target_q16: u32, shift: u8) -> Self {
+        let t = Self::from_probability_q16(target_q16).get();
+        Self::set(ema_u32(self.get(), t, shift))
+    }
+    /// [`Count::ema`] towards 0 or 1.
+    #[inline]
+    fn ema_bit(self, occupied: bool, shift: u8) -> Self {
+        Self::set(ema_u32(
+            self.get(),
+            if occupied { Self::MAX } else { 0 },
+            shift,
+        ))
+    }
+    /// The value of probability `p_q16 / 2^16` (clamped to 1), rounded to nearest.
+    #[inline]
+    fn from_probability_q16(p_q16: u32) -> Self {
+        let p = p_q16.min(1 << 16);
+        Self::set(if Self::MAX <= 0xFFFF {
+            // < 2^16 · 2^16: fits (32-bit arithmetic for u8/u16 counts).
+            (p * Self::MAX + (1 << 15)) >> 16
+        } else {
+            ((u64::from(p) * u64::from(Self::MAX) + (1 << 15)) >> 16) as u32
+        })
+    }
+}
+
+/// `m + round((t − m) / 2^shift)`, within `[min(m, t), max(m, t)]`, for any `u32` (the
+/// estimate settles within half a step of its target); shift 0 → `t`. Branch-free 32-bit
+/// arithmetic when both fit 16 bits (`u8`/`u16` counts), 64-bit otherwise.
+#[inline]
+fn ema_u32(m: u32, t: u32, shift: u8) -> u32 {
+    let s = u32::from(shift.min(31));
+    if s == 0 {
+        return t;
+    }
+    let half = 1i64 << (s - 1);
+    if m <= 0xFFFF && t <= 0xFFFF {
+        // |t − m| < 2^16: no overflow; the arithmetic shift rounds half-steps up.
+        let (m, t) = (m as i32, t as i32);
+        return (m + ((t - m + half as i32) >> s)) as u32;
+    }
+    let (m, t) = (i64::from(m), i64::from(t));
+    (m + ((t - m + half) >> s)) as u32
 }
 
 macro_rules! impl_count {
@@ -137,9 +190,32 @@ pub struct SamplerConfig {
     pub block_grid: u8,
     /// RNG seed.
     pub seed: u64,
+    /// The measurement term of Eq. 1 (rays, per-cell evidence, or both).
+    pub data: DataTerm,
+    /// Scale of the per-cell evidence (the log-odds map), Q8: 256 = the log-odds as they are.
+    pub evidence_gain_q8: u16,
+    /// Relative scale of *free* evidence (negative log-odds), Q8: the inverse model frees every
+    /// cell before a noisy hit, so the cells at a wall's face read free about as often as the
+    /// wall is hit; a smaller weight on free evidence keeps them from outvoting the hits.
+    pub evidence_free_q8: u16,
+    /// Also offer the configuration the evidence alone prefers ([`DataTerm::Evidence`]'s
+    /// thresholded log-odds; unobserved cells as they are) as a candidate whenever the prior's
+    /// top-k lacks it, with log-prior [`SamplerConfig::floor_log_prior`] — a floor under the
+    /// pruned prior, so that where the evidence is strong the data wins (thin walls the corpus
+    /// rarely shows, furniture the prior would square off).
+    pub data_candidate: bool,
+    /// Log-prior (LSB, ≤ 0) of a configuration the prior's table does not list.
+    pub floor_log_prior: i16,
+    /// How the marginals are estimated.
+    pub estimator: Estimator,
+    /// Of every 256 tile visits, how many go to tiles whose evidence changed since they were
+    /// last visited (the rest are uniform, so every tile keeps being visited): see
+    /// [`Gibbs::note_changed`]. 0 = uniform only.
+    pub hot_share: u8,
 }
 
 impl Default for SamplerConfig {
+    /// The paper's sampler: rays, sample counts, uniform tiles.
     fn default() -> Self {
         SamplerConfig {
             p_rand_patch: 0.001,
@@ -150,9 +226,21 @@ impl Default for SamplerConfig {
             visit_sweeps: 8,
             block_grid: 8,
             seed: 1,
+            data: DataTerm::Rays,
+            evidence_gain_q8: 256,
+            evidence_free_q8: 256,
+            data_candidate: false,
+            floor_log_prior: FLOOR_LOG_PRIOR,
+            estimator: Estimator::Counts,
+            hot_share: 0,
         }
     }
 }
+
+/// Default [`SamplerConfig::floor_log_prior`]: ln(10⁻³) in LSB (one LSB is ln 2 / 512), a
+/// tenth of the prior table's 1 % pruning threshold. One cell's clamped evidence (5 ln 4 =
+/// 6.9 nats) outweighs it; one observation (ln 4) does not.
+pub const FLOOR_LOG_PRIOR: i16 = -5102;
 
 /// Counters.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -205,7 +293,10 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     block_row_words: usize,
     grid: BlockGrid,
     rng: Xoshiro128PlusPlus,
-    p_rand_u32: u32,
+    /// Random patches come every `1 + below(rand_period)` updates (mean 1/p_randPatch; 0 =
+    /// never): one random number per random patch instead of one per update.
+    rand_period: u32,
+    rand_gap: u32,
     // Patch-centre range, current tile.
     cx0: i32,
     cx1: i32,
@@ -220,6 +311,14 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     samples: u32,
     halving: bool,
     stats: SamplerStats,
+    // Tiling of the patch-centre range, and the tiles whose evidence changed.
+    tiles_x: u32,
+    tiles_y: u32,
+    hot: HotTiles,
+    /// Evidence gains in effect (Q8), occupied and free: the configured ones, scaled for the
+    /// hybrid term.
+    ev_gain: i32,
+    ev_free_gain: i32,
     _count: core::marker::PhantomData<N>,
 }
 
@@ -265,6 +364,29 @@ fn below(r: u32, n: u32) -> u32 {
     ((u64::from(r) * u64::from(n)) >> 32) as u32
 }
 
+/// The unnormalised weights (Q16, the best candidate 2^16) of log-weights `w` into `q`; returns
+/// their sum (at most 17 × 2^16: no overflow).
+fn weights_q16(w: &[i32], q: &mut [u32]) -> u32 {
+    let best = w.iter().copied().max().unwrap_or(0);
+    let mut total = 0u32;
+    for (qi, wi) in q.iter_mut().zip(w) {
+        *qi = weight_q16(best.saturating_sub(*wi).unsigned_abs());
+        total = total.saturating_add(*qi);
+    }
+    total
+}
+
+/// [`DataTerm::Hybrid`]'s evidence gain: `gain_q8` times the share of the beams offered to the
+/// store that it no longer holds (decimated on arrival or thinned since).
+fn hybrid_gain(gain_q8: u16, s: &crate::ray_store::StoreStats) -> i32 {
+    let dropped = u64::from(s.rays_decimated) + u64::from(s.rays_thinned);
+    let offered = u64::from(s.rays_added) + u64::from(s.rays_decimated);
+    if offered == 0 {
+        return 0;
+    }
+    (u64::from(gain_q8) * dropped.min(offered) / offered) as i32
+}
+
 impl<P, B, C, L, K, N> Gibbs<P, B, C, L, K, N>
 where
     P: PatchPrior,
@@ -302,7 +424,14 @@ where
             && config.max_candidates > 0
             && (2..=12).contains(&config.tile_shift)
             && (1..=MAX_BLOCK_GRID).contains(&config.block_grid)
-            && config.p_rand_patch.is_finite();
+            && config.p_rand_patch.is_finite()
+            && config.floor_log_prior <= 0
+            && config.evidence_gain_q8 <= evidence::MAX_GAIN_Q8
+            && config.evidence_free_q8 <= evidence::MAX_GAIN_Q8
+            && match config.estimator {
+                Estimator::Counts => true,
+                Estimator::RaoBlackwell { shift, .. } => (1..=15).contains(&shift),
+            };
         if !valid {
             return Err(Error::InvalidModel);
         }
@@ -314,6 +443,21 @@ where
         let p = f64::from(config.p_rand_patch).clamp(0.0, 1.0);
         let cells_per_patch = (size * size) as u32;
         let block_row_words = buf.local.as_ref().len().div_ceil(32);
+        let t = 1i32 << config.tile_shift;
+        let (cx0, cx1, cy0, cy1) = (m, w - 1 - m, m, h - 1 - m);
+        let (tiles_x, tiles_y) = (((cx1 - cx0) / t + 1) as u32, ((cy1 - cy0) / t + 1) as u32);
+        let mut rng = Xoshiro128PlusPlus::seed_from_u64(config.seed);
+        let rand_period = if p > 0.0 {
+            // Uniform gaps on 1 ..= period have mean (period + 1) / 2 = 1/p.
+            libm::round(2.0 / p - 1.0).clamp(1.0, f64::from(u32::MAX)) as u32
+        } else {
+            0
+        };
+        let rand_gap = if rand_period > 0 {
+            1 + below(rng.next_u32(), rand_period)
+        } else {
+            0
+        };
         Ok(Gibbs {
             prior,
             forward,
@@ -323,12 +467,13 @@ where
             n_local: 0,
             block_row_words,
             grid: BlockGrid::default(),
-            rng: Xoshiro128PlusPlus::seed_from_u64(config.seed),
-            p_rand_u32: (p * 4_294_967_295.0) as u32,
-            cx0: m,
-            cx1: w - 1 - m,
-            cy0: m,
-            cy1: h - 1 - m,
+            rng,
+            rand_period,
+            rand_gap,
+            cx0,
+            cx1,
+            cy0,
+            cy1,
             tile: (0, 0, 0, 0),
             visit_left: 0,
             sweep_len: (k as u32).div_ceil(cells_per_patch).max(1),
@@ -337,6 +482,11 @@ where
             samples: 0,
             halving: false,
             stats: SamplerStats::default(),
+            tiles_x,
+            tiles_y,
+            hot: HotTiles::new(tiles_x, tiles_y),
+            ev_gain: 0,
+            ev_free_gain: 0,
             _count: core::marker::PhantomData,
         })
     }
@@ -402,9 +552,14 @@ where
     fn bits(&self, index: usize, n: u32) -> u32 {
         let words = self.buf.sample.as_ref();
         let (w, off) = (index / 32, (index % 32) as u32);
-        let lo = u64::from(words.get(w).copied().unwrap_or(0));
-        let hi = u64::from(words.get(w + 1).copied().unwrap_or(0));
-        (((hi << 32 | lo) >> off) as u32) & ((1 << n) - 1)
+        let lo = words.get(w).copied().unwrap_or(0) >> off;
+        // 32-bit only (a 64-bit shift is several instructions on a 32-bit core).
+        let v = if off + n <= 32 {
+            lo
+        } else {
+            lo | words.get(w + 1).copied().unwrap_or(0) << (32 - off)
+        };
+        v & ((1 << n) - 1)
     }
 
     /// Sets cell `index` of the current sample — for seeding cells the moment the mapper first
@@ -415,22 +570,52 @@ where
         self.set_occupied(index, occupied);
     }
 
-    /// Samples accumulated into the marginal counts (≤ `Count::MAX`, halves when full).
+    /// The denominator of [`Gibbs::count`]: samples accumulated into the marginal counts
+    /// (≤ `Count::MAX`, halves when full) with [`Estimator::Counts`]; `Count::MAX` with
+    /// [`Estimator::RaoBlackwell`], whose counts are probabilities scaled to `Count::MAX`.
     pub fn samples(&self) -> u32 {
-        self.samples
+        match self.config.estimator {
+            Estimator::Counts => self.samples,
+            Estimator::RaoBlackwell { .. } => N::MAX,
+        }
     }
 
-    /// Occupancy count of cell `index` out of [`Gibbs::samples`].
+    /// Marginal count of cell `index` out of [`Gibbs::samples`].
     pub fn count(&self, index: usize) -> u32 {
         self.buf.counts.as_ref().get(index).map_or(0, |c| c.get())
     }
 
     /// Marginal p(m_k = 1) estimate of cell `index`, or `None` before the first sample.
     pub fn marginal(&self, index: usize) -> Option<f32> {
-        if self.samples == 0 || index >= self.geometry.len() {
+        let n = self.samples();
+        if n == 0 || index >= self.geometry.len() {
             return None;
         }
-        Some((self.count(index) as f32 / self.samples as f32).min(1.0))
+        Some((self.count(index) as f32 / n as f32).min(1.0))
+    }
+
+    /// Tells the sampler that a scan changed cell `index`'s log-odds to `now` (what
+    /// [`crate::pipeline::insert_and_seed`] does for every cell it updates): marks its tile for
+    /// a visit ([`SamplerConfig::hot_share`]) and, with [`Estimator::RaoBlackwell`]'s
+    /// `reset_on_change`, restarts its estimate at `now`'s probability.
+    #[inline]
+    pub fn note_changed(&mut self, index: usize, now: LogOdds) {
+        if self.config.hot_share > 0 {
+            // Index → cell: one hardware division (widths are at least 1).
+            let w = u32::from(self.geometry.width());
+            let i = index as u32;
+            let y = i / w.max(1);
+            let x = i - y * w;
+            let s = u32::from(self.config.tile_shift);
+            let tx = (x.saturating_sub(self.cx0 as u32) >> s).min(self.tiles_x - 1);
+            let ty = (y.saturating_sub(self.cy0 as u32) >> s).min(self.tiles_y - 1);
+            self.hot.mark(tx, ty);
+        }
+        if self.config.estimator.resets() {
+            if let Some(c) = self.buf.counts.as_mut().get_mut(index) {
+                *c = N::from_probability_q16(estimate::probability_q16(now));
+            }
+        }
     }
 
     /// Starts over from the thresholded log-odds map: resets the sample, the marginals, the
@@ -455,7 +640,16 @@ where
                 self.set_occupied(i, true);
             }
         }
-        self.buf.counts.as_mut().fill(N::default());
+        match self.config.estimator {
+            Estimator::Counts => self.buf.counts.as_mut().fill(N::default()),
+            // Estimates start at the log-odds map's probabilities.
+            Estimator::RaoBlackwell { .. } => {
+                for (c, l) in self.buf.counts.as_mut().iter_mut().zip(map) {
+                    *c = N::default().ema(estimate::probability_q16(*l), 0);
+                }
+            }
+        }
+        self.hot.clear();
         (
             self.samples,
             self.halving,
@@ -553,34 +747,72 @@ where
         found
     }
 
-    /// Does up to `budget` patch updates (Algorithm 1's inner loop); returns how many were done.
-    pub fn step<S, R>(&mut self, store: &mut RayStore<S, R>, budget: u32) -> u32
+    /// Does up to `budget` patch updates (Algorithm 1's inner loop) on the rays in `store` and
+    /// the evidence in `map` (the online log-odds map, row-major over the sampler's geometry;
+    /// read only by [`DataTerm::Evidence`] / [`DataTerm::Hybrid`] and
+    /// [`SamplerConfig::data_candidate`]); returns how many were done.
+    pub fn step<S, R>(&mut self, store: &mut RayStore<S, R>, map: &[LogOdds], budget: u32) -> u32
     where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
+        self.set_gains(&store.stats());
         for _ in 0..budget {
             if self.visit_left == 0 {
                 self.start_visit(store);
             }
             self.visit_left -= 1;
-            self.update_one(store);
+            self.update_one(store, map);
             self.accumulate();
         }
         budget
     }
 
-    /// Picks a random tile and gathers the rays its patches can meet.
+    /// The evidence gains in effect: the configured ones, scaled by the dropped share of the
+    /// beams for [`DataTerm::Hybrid`], none for [`DataTerm::Rays`].
+    fn set_gains(&mut self, store: &crate::ray_store::StoreStats) {
+        let g = i32::from(self.config.evidence_gain_q8);
+        self.ev_gain = match self.config.data {
+            DataTerm::Evidence => g,
+            DataTerm::Hybrid => hybrid_gain(self.config.evidence_gain_q8, store),
+            DataTerm::Rays => 0,
+        };
+        // ≤ 2^12 · 2^12 before the shift.
+        self.ev_free_gain = (self.ev_gain * i32::from(self.config.evidence_free_q8)) >> 8;
+    }
+
+    /// Picks a tile — a changed one for [`SamplerConfig::hot_share`] of the visits, else a
+    /// uniformly random one — and gathers the rays its patches can meet.
     fn start_visit<S, R>(&mut self, store: &mut RayStore<S, R>)
     where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
         let t = 1i32 << self.config.tile_shift;
-        let tiles_x = (self.cx1 - self.cx0) / t + 1;
-        let tiles_y = (self.cy1 - self.cy0) / t + 1;
-        let tx = below(self.rng.next_u32(), tiles_x as u32) as i32;
-        let ty = below(self.rng.next_u32(), tiles_y as u32) as i32;
+        let r = self.rng.next_u32();
+        let hot = if (r & 0xff) < u32::from(self.config.hot_share) {
+            self.hot.take()
+        } else {
+            None
+        };
+        let (tx, ty) = match hot {
+            Some((gx, gy, edge)) => {
+                // A group of tiles on large maps: one of its tiles at random.
+                let (dx, dy) = if edge > 1 {
+                    (below(r >> 8 & 0xfff, edge), below(r >> 20, edge))
+                } else {
+                    (0, 0)
+                };
+                (
+                    ((gx + dx).min(self.tiles_x - 1)) as i32,
+                    ((gy + dy).min(self.tiles_y - 1)) as i32,
+                )
+            }
+            None => (
+                below(self.rng.next_u32(), self.tiles_x) as i32,
+                below(self.rng.next_u32(), self.tiles_y) as i32,
+            ),
+        };
         let x0 = self.cx0 + tx * t;
         let y0 = self.cy0 + ty * t;
         let (x1, y1) = ((x0 + t - 1).min(self.cx1), (y0 + t - 1).min(self.cy1));
@@ -590,11 +822,13 @@ where
         self.visit_left =
             (cells / (size * size) as u32).max(1) * u32::from(self.config.visit_sweeps.max(1));
         self.stats.tile_visits += 1;
-        let h = size / 2;
-        self.gather(
-            store,
-            BlockGrid::new(x0 - h, y0 - h, x1 + h, y1 + h, self.config.block_grid),
-        );
+        if self.config.data.uses_rays() {
+            let h = size / 2;
+            self.gather(
+                store,
+                BlockGrid::new(x0 - h, y0 - h, x1 + h, y1 + h, self.config.block_grid),
+            );
+        }
     }
 
     /// Collects the rays visiting the box of `grid` into the local list and block bitsets.
@@ -705,6 +939,7 @@ where
     pub fn conditional<S, R>(
         &mut self,
         store: &mut RayStore<S, R>,
+        map: &[LogOdds],
         centre: CellCoord,
         out: &mut [(u16, f64)],
     ) -> usize
@@ -712,39 +947,35 @@ where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
+        self.set_gains(&store.stats());
         let h = i32::from(self.prior.size()) / 2;
-        self.gather(
-            store,
-            BlockGrid::new(
-                centre.x - h,
-                centre.y - h,
-                centre.x + h,
-                centre.y + h,
-                self.config.block_grid,
-            ),
-        );
+        if self.config.data.uses_rays() {
+            self.gather(
+                store,
+                BlockGrid::new(
+                    centre.x - h,
+                    centre.y - h,
+                    centre.x + h,
+                    centre.y + h,
+                    self.config.block_grid,
+                ),
+            );
+        }
         self.visit_left = 0;
-        let (_, border) = self.config_and_border(centre);
-        let mut cands = [PatchCandidate::default(); MAX_CANDIDATES];
-        let k = usize::from(self.config.max_candidates)
-            .min(MAX_CANDIDATES)
-            .min(out.len());
+        let (current, border) = self.config_and_border(centre);
+        let mut cands = [PatchCandidate::default(); MAX_CANDIDATES + 1];
+        let mut w = [0i32; MAX_CANDIDATES + 1];
         let n = self
-            .prior
-            .candidates(border, cands.get_mut(..k).unwrap_or(&mut []))
-            .min(k);
+            .candidates(map, centre, current, border, &mut cands, &mut w)
+            .min(out.len());
         let cands = cands.get(..n).unwrap_or(&[]);
-        let mut w = [0i32; MAX_CANDIDATES];
-        self.log_weights(store, centre, cands, &mut w, &mut CrossingCache::new());
-        let best = w.iter().take(n).copied().max().unwrap_or(0);
-        let q: [u32; MAX_CANDIDATES] = core::array::from_fn(|j| {
-            w.get(j)
-                .filter(|_| j < n)
-                .map_or(0, |wj| weight_q16(best.saturating_sub(*wj).unsigned_abs()))
-        });
-        let total: u64 = q.iter().map(|&x| u64::from(x)).sum();
+        if self.config.data.uses_rays() {
+            self.log_weights(store, centre, cands, &mut w, &mut CrossingCache::new());
+        }
+        let mut q = [0u32; MAX_CANDIDATES + 1];
+        let total = weights_q16(w.get(..n).unwrap_or(&[]), &mut q);
         for ((o, c), qi) in out.iter_mut().zip(cands).zip(q) {
-            *o = (c.config, f64::from(qi) / total.max(1) as f64);
+            *o = (c.config, f64::from(qi) / f64::from(total.max(1)));
         }
         n
     }
@@ -777,48 +1008,190 @@ where
         }
     }
 
-    fn update_one<S, R>(&mut self, store: &mut RayStore<S, R>)
+    fn update_one<S, R>(&mut self, store: &mut RayStore<S, R>, map: &[LogOdds])
     where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
         self.stats.updates += 1;
         let (x0, y0, x1, y1) = self.tile;
-        let cx = x0 + below(self.rng.next_u32(), (x1 - x0 + 1) as u32) as i32;
-        let cy = y0 + below(self.rng.next_u32(), (y1 - y0 + 1) as u32) as i32;
+        // One random number places the patch (16 bits per axis: tiles are at most 2^12 wide, so
+        // the bias of the multiply-shift is below 2^-4 of a cell's share).
+        let r = self.rng.next_u32();
+        let cx = x0 + below(r << 16, (x1 - x0 + 1) as u32) as i32;
+        let cy = y0 + below(r & 0xffff_0000, (y1 - y0 + 1) as u32) as i32;
         let centre = CellCoord { x: cx, y: cy };
-        let size = i32::from(self.prior.size());
         let (current, border) = self.config_and_border(centre);
-        // Crossings computed for the likelihood are reused to update the ray caches if the patch
-        // changes (`None`: not computed, or more than fit).
-        let mut crossings = CrossingCache::new();
-        let new = if self.rng.next_u32() < self.p_rand_u32 {
-            self.stats.random_patches += 1;
-            (self.rng.next_u32() & ((1u32 << (size * size)) - 1)) as u16
-        } else {
-            let mut cands = [PatchCandidate::default(); MAX_CANDIDATES];
-            let k = usize::from(self.config.max_candidates).min(MAX_CANDIDATES);
-            let n = self
-                .prior
-                .candidates(border, cands.get_mut(..k).unwrap_or(&mut []))
-                .min(k);
-            match n {
-                0 => current,
-                1 => {
-                    self.stats.single_candidate += 1;
-                    cands.first().map_or(current, |c| c.config)
+        if self.rand_period > 0 {
+            // Invariant: the gap is ≥ 1 while random patches are on.
+            self.rand_gap = self.rand_gap.saturating_sub(1);
+            if self.rand_gap == 0 {
+                self.rand_gap = 1 + below(self.rng.next_u32(), self.rand_period);
+                self.stats.random_patches += 1;
+                let size = i32::from(self.prior.size());
+                let new = (self.rng.next_u32() & ((1u32 << (size * size)) - 1)) as u16;
+                if new != current {
+                    self.stats.changed += 1;
+                    self.apply(store, centre, new, None);
                 }
-                _ => {
-                    let cands = cands.get(..n).unwrap_or(&[]);
-                    let mut w = [0i32; MAX_CANDIDATES];
-                    self.log_weights(store, centre, cands, &mut w, &mut crossings);
-                    self.draw(cands, w.get(..n).unwrap_or(&[]))
-                }
+                return;
             }
+        }
+        let mut cands = [PatchCandidate::default(); MAX_CANDIDATES + 1];
+        let mut w = [0i32; MAX_CANDIDATES + 1];
+        let n = self.candidates(map, centre, current, border, &mut cands, &mut w);
+        if n <= 1 {
+            self.stats.single_candidate += 1;
+            let new = cands.first().map_or(current, |c| c.config);
+            self.rao_blackwell_single(centre, new);
+            if new != current {
+                self.stats.changed += 1;
+                self.apply(store, centre, new, None);
+            }
+            return;
+        }
+        let cands = cands.get(..n).unwrap_or(&[]);
+        // Crossings computed for the likelihood are reused to update the ray caches if the patch
+        // changes.
+        let crossings = if self.config.data.uses_rays() {
+            let mut c = CrossingCache::new();
+            self.log_weights(store, centre, cands, &mut w, &mut c);
+            Some(c)
+        } else {
+            None
         };
+        let mut q = [0u32; MAX_CANDIDATES + 1];
+        let total = weights_q16(w.get(..n).unwrap_or(&[]), &mut q);
+        let new = self.draw(cands, &q, total);
+        self.rao_blackwell(centre, cands, q.get(..n).unwrap_or(&[]), total);
         if new != current {
             self.stats.changed += 1;
-            self.apply(store, centre, new, &crossings);
+            self.apply(store, centre, new, crossings.as_ref());
+        }
+    }
+
+    /// The candidates of the patch at `centre` (the prior's top-k, plus the evidence's own
+    /// configuration with [`SamplerConfig::data_candidate`]) into `cands`, and in `w` their
+    /// log-prior plus the evidence term; returns how many.
+    fn candidates(
+        &self,
+        map: &[LogOdds],
+        centre: CellCoord,
+        current: u16,
+        border: u16,
+        cands: &mut [PatchCandidate; MAX_CANDIDATES + 1],
+        w: &mut [i32; MAX_CANDIDATES + 1],
+    ) -> usize {
+        let k = usize::from(self.config.max_candidates).min(MAX_CANDIDATES);
+        let mut n = self
+            .prior
+            .candidates(border, cands.get_mut(..k).unwrap_or(&mut []))
+            .min(k);
+        let use_ev = self.ev_gain != 0;
+        if !use_ev && !self.config.data_candidate {
+            for (wi, c) in w.iter_mut().zip(cands.iter()).take(n) {
+                *wi = c.log_prior;
+            }
+            return n;
+        }
+        let ev = patch_evidence(
+            map,
+            usize::from(self.geometry.width()),
+            centre,
+            i32::from(self.prior.size()),
+        );
+        if self.config.data_candidate {
+            let d = ev.data_config(current);
+            if !cands.iter().take(n).any(|c| c.config == d) {
+                if let Some(slot) = cands.get_mut(n) {
+                    *slot = PatchCandidate {
+                        config: d,
+                        log_prior: i32::from(self.config.floor_log_prior),
+                    };
+                    n += 1;
+                }
+            }
+        }
+        if n <= 1 {
+            // One candidate: no weights needed.
+            return n;
+        }
+        let (occ, free) = (self.ev_gain, self.ev_free_gain);
+        for (wi, c) in w.iter_mut().zip(cands.iter()).take(n) {
+            *wi = if use_ev {
+                c.log_prior.saturating_add(ev.of(c.config, occ, free))
+            } else {
+                c.log_prior
+            };
+        }
+        n
+    }
+
+    /// [`Estimator::RaoBlackwell`]: moves the estimate of every cell of the patch at `centre`
+    /// towards its conditional occupancy probability, Σ of the weights `q` of the candidates
+    /// that occupy it over their sum `total`.
+    fn rao_blackwell(
+        &mut self,
+        centre: CellCoord,
+        cands: &[PatchCandidate],
+        q: &[u32],
+        total: u32,
+    ) {
+        let Estimator::RaoBlackwell { shift, .. } = self.config.estimator else {
+            return;
+        };
+        if total == 0 {
+            return;
+        }
+        // Each cell's occupied weight, one pass over the candidates' set bits.
+        let mut occ = [0u32; 9];
+        for (k, &x) in cands.iter().zip(q) {
+            let mut c = k.config;
+            while c != 0 {
+                let b = c.trailing_zeros() as usize;
+                c &= c - 1;
+                if let Some(o) = occ.get_mut(b) {
+                    *o += x; // ≤ 17 · 2^16: no overflow.
+                }
+            }
+        }
+        // p = occ · 2^16 / total with one division: occ ≤ total < 2^21, so occ · inv fits a u64.
+        let inv = (1u64 << 48) / u64::from(total);
+        self.for_patch_counts(centre, |bit, c| {
+            let o = occ.get(bit as usize).copied().unwrap_or(0);
+            *c = c.ema(((u64::from(o) * inv) >> 32) as u32, shift);
+        });
+    }
+
+    /// [`Estimator::RaoBlackwell`] for a single candidate: each cell's conditional is 0 or 1.
+    #[inline]
+    fn rao_blackwell_single(&mut self, centre: CellCoord, config: u16) {
+        let Estimator::RaoBlackwell { shift, .. } = self.config.estimator else {
+            return;
+        };
+        self.for_patch_counts(centre, |bit, c| {
+            *c = c.ema_bit(config >> bit & 1 != 0, shift);
+        });
+    }
+
+    /// Calls `f(bit, count)` for the marginal count of every cell of the patch at `centre`.
+    #[inline]
+    fn for_patch_counts(&mut self, centre: CellCoord, mut f: impl FnMut(u32, &mut N)) {
+        let size = i32::from(self.prior.size());
+        let h = size / 2;
+        let width = usize::from(self.geometry.width());
+        let counts = self.buf.counts.as_mut();
+        let mut bit = 0u32;
+        for dy in -h..=h {
+            // Patch centres keep the prior's margin from the edge: the row is in the map.
+            let start = (centre.y + dy) as usize * width + (centre.x - h) as usize;
+            let Some(row) = counts.get_mut(start..start + size as usize) else {
+                return;
+            };
+            for c in row {
+                f(bit, c);
+                bit += 1;
+            }
         }
     }
 
@@ -857,7 +1230,8 @@ where
         examined
     }
 
-    /// Eq. 1 in the log domain: log-prior plus Σ over crossing rays of log p(z | f(config)).
+    /// Eq. 1 in the log domain: adds to `w` (the log-priors, plus any evidence term) the Σ over
+    /// crossing rays of log p(z | f(config)).
     fn log_weights<S, R>(
         &mut self,
         store: &RayStore<S, R>,
@@ -869,9 +1243,6 @@ where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
-        for (wi, c) in w.iter_mut().zip(cands) {
-            *wi = c.log_prior;
-        }
         let mut evaluated = 0u64;
         cache.valid = true;
         let examined = self.for_each_crossing(store, centre, |lr, cross| {
@@ -963,17 +1334,10 @@ where
         self.forward.hit((d * k + 2048) >> 12)
     }
 
-    /// Draws a candidate with probability ∝ exp(w).
-    fn draw(&mut self, cands: &[PatchCandidate], w: &[i32]) -> u16 {
-        let best = w.iter().copied().max().unwrap_or(0);
-        let mut q = [0u32; MAX_CANDIDATES];
-        let mut total = 0u32;
-        for (qi, wi) in q.iter_mut().zip(w) {
-            *qi = weight_q16(best.saturating_sub(*wi).unsigned_abs());
-            total = total.saturating_add(*qi);
-        }
+    /// Draws a candidate with probability `q / total` (see [`weights_q16`]).
+    fn draw(&mut self, cands: &[PatchCandidate], q: &[u32], total: u32) -> u16 {
         let mut r = below(self.rng.next_u32(), total.max(1));
-        for (c, qi) in cands.iter().zip(q) {
+        for (c, &qi) in cands.iter().zip(q) {
             if r < qi {
                 return c.config;
             }
@@ -989,7 +1353,7 @@ where
         store: &mut RayStore<S, R>,
         centre: CellCoord,
         config: u16,
-        cache: &CrossingCache,
+        cache: Option<&CrossingCache>,
     ) where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
@@ -997,7 +1361,9 @@ where
         // First the rays (their crossings are computed against the old sample; a ray's update
         // only touches its own cache)…
         let h = i32::from(self.prior.size()) / 2;
-        if let Some(cached) = cache.get() {
+        if !self.config.data.uses_rays() {
+            // No rays are read: their caches are not kept.
+        } else if let Some(cached) = cache.and_then(CrossingCache::get) {
             let rays = store.rays_mut();
             for (index, cross) in cached {
                 let f = cross.first_in_patch(config).unwrap_or(cross.f_after);
@@ -1044,9 +1410,19 @@ where
 
     /// Advances the marginal-accumulation cursor by L cells; counts sweeps.
     fn accumulate(&mut self) {
+        if self.config.estimator != Estimator::Counts {
+            // Only the sweep count.
+            self.in_sweep += 1;
+            if self.in_sweep >= self.sweep_len {
+                self.in_sweep = 0;
+                self.stats.sweeps = self.stats.sweeps.saturating_add(1);
+            }
+            return;
+        }
         let size = usize::from(self.prior.size());
         let k = self.geometry.len();
-        let counting = self.stats.sweeps >= self.config.burn_in_sweeps;
+        let counting = self.stats.sweeps >= self.config.burn_in_sweeps
+            && self.config.estimator == Estimator::Counts;
         if counting && self.cursor == 0 {
             self.halving = self.samples >= N::MAX;
         }

@@ -72,6 +72,10 @@ impl PatchPrior for BorderPrior {
         2
     }
     fn candidates(&self, border: u16, out: &mut [PatchCandidate]) -> usize {
+        // The common case, a stored border: straight from the flash table.
+        if let Some(c) = crate::prior::border_candidates(border) {
+            return copy_candidates(c, out);
+        }
         let mut buf = [crate::prior::Candidate {
             config: 0,
             log_prior: 0,

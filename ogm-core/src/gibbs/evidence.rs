@@ -1,0 +1,192 @@
+//! The measurement term of Eq. 1 without rays: per-cell evidence from the log-odds map.
+//!
+//! The paper's conclusion proposes "correlating cells in only the prior (i.e., not
+//! measurements)": the measurements enter per cell, as the evidence the robot keeps anyway —
+//! its log-odds map `l_k = log p(z | m_k = 1) / p(z | m_k = 0)` (the map starts at 0, so it holds
+//! no prior) — and only the patch prior correlates cells. Under that model
+//!
+//! ```text
+//! p(a_k = w | z, m_¬a_k) = η · p(a_k = w | border) · Π_{i ∈ a_k} exp(g · l_i · w_i)
+//! ```
+//!
+//! so a candidate's weight is its log-prior plus the (gain-scaled) log-odds of the cells it
+//! sets occupied: O(9 × candidates) per patch, no rays, and memory that does not grow with the
+//! mission. The log-odds clamp makes the term saturate with evidence, so a cell seen free a
+//! hundred times weighs as much as one seen free five times — enough to overrule the prior
+//! (a clamped cell is worth 6.9 nats, more than the prior's pruning floor of 1 %) but not
+//! unbounded. [`DataTerm::Hybrid`] adds this term, scaled by the share of beams the ray store
+//! has dropped, to the rays' forward-model likelihood, so thinning the store loses nothing.
+
+use crate::fixed::LogOdds;
+use crate::geometry::CellCoord;
+
+/// Which measurement term weights a patch's candidates (Eq. 1's product).
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
+)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DataTerm {
+    /// The forward-model likelihood of every stored ray crossing the patch (the paper's
+    /// Eq. 1). Needs the ray store; memory grows with the mission until the store thins.
+    Rays,
+    /// Per-cell log-odds evidence times the patch prior: no rays (see the module docs). The
+    /// firmware's default.
+    #[default]
+    Evidence,
+    /// The rays still in the store, plus the log-odds evidence scaled by the share of beams the
+    /// store has dropped (decimated or thinned): equal to [`DataTerm::Rays`] until the store
+    /// fills, and never losing what it drops. The share is global, which is exact in
+    /// expectation because the store thins uniformly (every scan, every other ray).
+    Hybrid,
+}
+
+impl DataTerm {
+    /// Whether this term reads the ray store.
+    #[inline]
+    pub fn uses_rays(self) -> bool {
+        !matches!(self, DataTerm::Evidence)
+    }
+}
+
+/// The evidence of one patch.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct PatchEvidence {
+    /// Log-odds of each patch cell (bit order of [`crate::patch`]), LSB.
+    pub(crate) l: [i16; 9],
+    /// Cells whose log-odds is positive.
+    pub(crate) occupied: u16,
+    /// Cells with any evidence (log-odds ≠ 0).
+    pub(crate) known: u16,
+}
+
+impl PatchEvidence {
+    /// The evidence term of `config`: Σ over the cells it sets occupied of their log-odds,
+    /// positive ones scaled by `occ_q8 / 256` and negative ones by `free_q8 / 256` (both ≤
+    /// [`MAX_GAIN_Q8`]) — its log-likelihood relative to the all-free configuration.
+    #[inline]
+    pub(crate) fn of(&self, config: u16, occ_q8: i32, free_q8: i32) -> i32 {
+        // Only cells with evidence contribute.
+        let mut c = config & self.known;
+        let mut s = 0i32;
+        while c != 0 {
+            let b = c.trailing_zeros() as usize;
+            c &= c - 1;
+            let l = i32::from(self.l.get(b).copied().unwrap_or(0));
+            // |l| ≤ 2^15 and gains ≤ 2^12: each term fits an i32, nine of them too.
+            s += (l * if l > 0 { occ_q8 } else { free_q8 }) >> 8;
+        }
+        s
+    }
+
+    /// The configuration the evidence alone prefers: cells with positive log-odds occupied,
+    /// cells with negative log-odds free, unobserved cells as in `current`.
+    #[inline]
+    pub(crate) fn data_config(&self, current: u16) -> u16 {
+        (current & !self.known) | self.occupied
+    }
+}
+
+/// The scale of free evidence (Q8) that matches a range sensor with Gaussian noise of `sigma`
+/// cells: the Hähnel inverse model frees every cell a beam passes and hits the cell it ends in,
+/// so at a wall's face a noisy beam passes the face cell with probability
+/// `1 − Φ(½/σ)` and ends in it with probability `2Φ(½/σ) − 1`. Free evidence scaled by their
+/// ratio (at most 1) makes the face cell's expected evidence neutral instead of free: 0.31 for
+/// the simulation's σ = 3 cells, 1 for any sensor with σ ≤ 1.1 cells (every real lidar at 5 cm).
+pub fn free_evidence_q8(sigma: f64) -> u16 {
+    if sigma.is_nan() || sigma <= 0.0 || sigma.is_infinite() {
+        return 256;
+    }
+    let x = 0.5 / (sigma * core::f64::consts::SQRT_2);
+    let (hit, pass) = (libm::erf(x), 0.5 * libm::erfc(x));
+    let ratio = if pass > 0.0 {
+        (hit / pass).min(1.0)
+    } else {
+        1.0
+    };
+    libm::round(ratio * 256.0) as u16
+}
+
+/// Largest evidence gain (Q8, both [`crate::gibbs::SamplerConfig::evidence_gain_q8`] and the
+/// free scale): 16×, so `log-odds × gain` fits an `i32` (2^15 · 2^12).
+pub const MAX_GAIN_Q8: u16 = 4096;
+
+/// The evidence of the `size × size` patch (size 1 or 3) centred at `centre` in the row-major
+/// log-odds map `map` of `width` columns. Cells outside the map have no evidence.
+#[inline]
+pub(crate) fn patch_evidence(
+    map: &[LogOdds],
+    width: usize,
+    centre: CellCoord,
+    size: i32,
+) -> PatchEvidence {
+    let mut e = PatchEvidence::default();
+    let h = size / 2;
+    let (x0, n) = (centre.x - h, size as usize);
+    let mut bit = 0usize;
+    for dy in -h..=h {
+        let y = centre.y + dy;
+        // Patch centres keep a margin from the map edge, so rows are whole; a row that is not
+        // (only reachable through this function's own tests) reads as no evidence.
+        let row = if y >= 0 && x0 >= 0 && x0 as usize + n <= width {
+            let start = y as usize * width + x0 as usize;
+            map.get(start..start + n).unwrap_or(&[])
+        } else {
+            &[]
+        };
+        for (k, l) in row.iter().enumerate() {
+            let b = bit + k;
+            e.known |= u16::from(l.0 != 0) << b;
+            e.occupied |= u16::from(l.0 > 0) << b;
+            if let Some(slot) = e.l.get_mut(b) {
+                *slot = l.0;
+            }
+        }
+        bit += n;
+    }
+    e
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn evidence_reads_the_patch_in_bit_order() {
+        // 5 × 4 map, patch centred at (2, 1).
+        let w = 5;
+        let mut map = vec![LogOdds(0); 20];
+        map[1] = LogOdds(-1024); // bit 0: (1, 0)
+        map[w + 3] = LogOdds(2048); // bit 5: (3, 1)
+        map[2 * w + 2] = LogOdds(512); // bit 7: (2, 2)
+        let e = patch_evidence(&map, w, CellCoord { x: 2, y: 1 }, 3);
+        assert_eq!(e.known, 1 | 1 << 5 | 1 << 7);
+        assert_eq!(e.occupied, 1 << 5 | 1 << 7);
+        assert_eq!((e.l[0], e.l[5], e.l[7]), (-1024, 2048, 512));
+        assert_eq!(e.of(1 << 5 | 1 << 7 | 1, 256, 256), 2048 + 512 - 1024);
+        // Occupied and free evidence scale separately; cells without evidence add nothing.
+        assert_eq!(e.of(1 << 5 | 1 | 1 << 8, 128, 64), 1024 - 256);
+        assert_eq!(e.of(0, 256, 256), 0);
+        // Unobserved cells keep the current state, observed ones follow their sign.
+        assert_eq!(e.data_config(0b1_1111_1111), 0b1_1111_1111 & !1);
+        assert_eq!(e.data_config(0), 1 << 5 | 1 << 7);
+    }
+
+    #[test]
+    fn free_scale_follows_the_noise() {
+        assert_eq!(free_evidence_q8(3.0), 78);
+        assert_eq!(free_evidence_q8(0.5), 256);
+        assert_eq!(free_evidence_q8(0.9), 256);
+        assert!(free_evidence_q8(10.0) < 30);
+        assert_eq!(free_evidence_q8(f64::NAN), 256);
+        assert_eq!(free_evidence_q8(-1.0), 256);
+    }
+
+    #[test]
+    fn rows_not_wholly_in_the_map_have_no_evidence() {
+        let map = vec![LogOdds(100); 9];
+        let corner = patch_evidence(&map, 3, CellCoord { x: 0, y: 0 }, 3);
+        assert_eq!(corner.known, 0);
+        let top = patch_evidence(&map, 3, CellCoord { x: 1, y: 2 }, 3);
+        assert_eq!(top.known, 0b000_111_111);
+    }
+}
