@@ -81,7 +81,12 @@ impl Machine {
         let geometry = config.geometry(sz::WIDTH, sz::HEIGHT).map_err(|_| 0u32)?;
         let grid = LogOddsGrid::new(geometry, b.grid).map_err(|_| 0u32)?;
         let mapper = Mapper::new(grid, b.marks, config.mapper_config()).map_err(|_| 1u32)?;
-        let forward = config.forward_model().map_err(|_| 2u32)?;
+        // The evidence term reads no rays: no forward-model tables to build.
+        let forward = if config.data.uses_rays() {
+            config.forward_model().map_err(|_| 2u32)?
+        } else {
+            ogm_core::forward_model::ForwardModel::pcsm()
+        };
         let store = RayStore::new(
             geometry,
             config.max_range_mm,
@@ -92,7 +97,7 @@ impl Machine {
         .map_err(|_| 3u32)?;
         let gibbs = Gibbs::new(
             geometry,
-            BorderPrior,
+            BorderPrior::default(),
             forward,
             config.sampler_config(),
             SamplerBuffers {

@@ -119,7 +119,7 @@ fn build(config: RunConfig) -> Option<Machine> {
     let sc = config.sampler_config();
     let mut gibbs = Gibbs::new(
         g,
-        BorderPrior,
+        BorderPrior::default(),
         forward,
         sc,
         Buffers {

@@ -35,6 +35,33 @@ pub struct ExploreConfig {
     pub cluster_radius_m: f64,
     /// Hard bound on the number of scans.
     pub max_stops: usize,
+    /// Scans per second while driving (the LD06 turns at 10 Hz); 0 = scan only when stopped,
+    /// as in the paper.
+    pub scan_rate_hz: f64,
+    /// Driving speed, m/s (with `scan_rate_hz`).
+    pub speed_m_s: f64,
+    /// Keep going — patrolling to random navigable places once nothing is left to explore —
+    /// until at least this many scans are taken (a long mission); 0 = stop when explored.
+    pub min_scans: usize,
+}
+
+impl ExploreConfig {
+    /// A robot that scans at `rate_hz` while driving at `speed_m_s`, for at least `scans` scans
+    /// (and at most `scans` plus one path's worth).
+    pub fn moving(rate_hz: f64, speed_m_s: f64, scans: usize) -> Self {
+        ExploreConfig {
+            scan_rate_hz: rate_hz,
+            speed_m_s,
+            min_scans: scans,
+            max_stops: scans.max(1),
+            ..ExploreConfig::default()
+        }
+    }
+
+    fn moving_step_cells(&self, res: f64) -> Option<f64> {
+        (self.scan_rate_hz > 0.0 && self.speed_m_s > 0.0)
+            .then(|| self.speed_m_s / self.scan_rate_hz / res)
+    }
 }
 
 impl Default for ExploreConfig {
@@ -46,6 +73,9 @@ impl Default for ExploreConfig {
             min_unobserved: 40,
             cluster_radius_m: 0.5,
             max_stops: 400,
+            scan_rate_hz: 0.0,
+            speed_m_s: 0.4,
+            min_scans: 0,
         }
     }
 }
@@ -140,6 +170,11 @@ fn largest_component(mask: &[bool], w: usize, h: usize) -> Vec<bool> {
 
 /// Runs an exploration. `scan_and_map(pose)` must take a scan at `pose`, integrate it into the
 /// robot's map, and return the scan's beams plus the mask of cells observed so far.
+///
+/// With [`ExploreConfig::scan_rate_hz`] the robot also scans while it drives, every
+/// `speed / rate` along its path (poses interpolated between cell centres, heading along the
+/// path; one pose per scan — the sensor's own motion during a turn is not simulated), and with
+/// [`ExploreConfig::min_scans`] it patrols to random navigable cells once everything is explored.
 pub fn explore(
     world: &World,
     cfg: &ExploreConfig,
@@ -172,16 +207,29 @@ pub fn explore(
             heading,
         }
     };
-    while records.len() < cfg.max_stops {
+    let moving = cfg.moving_step_cells(res);
+    let limit = cfg.max_stops.max(cfg.min_scans);
+    // Distance driven since the last scan while moving, cells.
+    let mut since_scan = 0.0f64;
+    let mut observed_now: Vec<bool> = vec![false; w * h];
+    let mut first = true;
+    while records.len() < limit {
         let pose = pose_of(cur, heading);
-        let (beams, observed) = scan_and_map(&pose).context("scanning")?;
+        let observed = if moving.is_none() || first {
+            first = false;
+            let (beams, observed) = scan_and_map(&pose).context("scanning")?;
+            records.push(ScanRecord { pose, beams });
+            observed_now.clone_from(&observed);
+            observed
+        } else {
+            observed_now.clone()
+        };
         ensure!(
             observed.len() == w * h,
             "observed mask has {} cells, world {}",
             observed.len(),
             w * h
         );
-        records.push(ScanRecord { pose, beams });
         stops.push(cur);
         // Unobserved navigable cells per neighbourhood, by a summed-area table.
         let r = (cfg.cluster_radius_m / res).ceil() as usize;
@@ -229,7 +277,20 @@ pub fn explore(
                 }
             }
         }
-        let Some(target) = target else { break };
+        let target = match target {
+            Some(t) => t,
+            // Explored: patrol to a random reachable cell for a long mission.
+            None if records.len() < cfg.min_scans => {
+                let reachable: Vec<usize> = (0..w * h)
+                    .filter(|&i| parent[i] != usize::MAX && i != cur)
+                    .collect();
+                if reachable.is_empty() {
+                    break;
+                }
+                reachable[rng.random_range(0..reachable.len())]
+            }
+            None => break,
+        };
         // Path back from the target; drive at most `max_step` cells along it.
         let mut path = vec![target];
         while let Some(&last) = path.last() {
@@ -239,6 +300,33 @@ pub fn explore(
             path.push(parent[last]);
         }
         path.reverse();
+        if let Some(step) = moving {
+            // Drive the whole path, scanning every `step` cells.
+            for pair in path.windows(2) {
+                let (a, b) = (pair[0], pair[1]);
+                let (ax, ay) = ((a % w) as f64, (a / w) as f64);
+                let (bx, by) = ((b % w) as f64, (b / w) as f64);
+                let d = (bx - ax).hypot(by - ay);
+                heading = Angle::from_radians((by - ay).atan2(bx - ax));
+                let mut t = step - since_scan;
+                while t <= d && records.len() < limit {
+                    let f = t / d;
+                    let (x, y) = (ax + f * (bx - ax), ay + f * (by - ay));
+                    let pose = Pose {
+                        x_mm: ((world.origin_m.0 + (x + 0.5) * res) * 1000.0).round() as i32,
+                        y_mm: ((world.origin_m.1 + (y + 0.5) * res) * 1000.0).round() as i32,
+                        heading,
+                    };
+                    let (beams, observed) = scan_and_map(&pose).context("scanning")?;
+                    records.push(ScanRecord { pose, beams });
+                    observed_now = observed;
+                    t += step;
+                }
+                since_scan = d - (t - step);
+            }
+            cur = target;
+            continue;
+        }
         let mut travelled = 0.0;
         let mut next = cur;
         for pair in path.windows(2) {

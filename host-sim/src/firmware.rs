@@ -98,6 +98,14 @@ pub struct FirmwareArgs {
     /// on a noisy link a frame is then lost only if every copy is damaged).
     #[arg(long, default_value_t = 1)]
     pub repeat_frames: usize,
+    /// The robot scans while it drives, at the LD06's rate (10 Hz, 450 points per turn, 0.4 m/s),
+    /// not only when stopped.
+    #[arg(long)]
+    pub moving: bool,
+    /// A long mission: the robot (scanning while it drives) keeps exploring, then patrolling,
+    /// until it has taken this many scans.
+    #[arg(long)]
+    pub mission_scans: Option<usize>,
     /// Soak: send this many scans, cycling through the simulated run's scans.
     #[arg(long)]
     pub soak_scans: Option<usize>,
@@ -144,13 +152,17 @@ pub struct SamplerArgs {
     /// Offer the evidence's own configuration as a candidate (true/false).
     #[arg(long)]
     pub data_candidate: Option<bool>,
-    /// Marginal estimator: `counts`, or `rb:SHIFT` / `rb:SHIFT:reset` (Rao-Blackwellised,
-    /// averaging over 2^SHIFT updates of a cell; `reset` restarts changed cells).
+    /// Marginal estimator: `counts`, or `avg:SHIFT[:reset]` / `rb:SHIFT[:reset]` (average of
+    /// draws / of conditional probabilities over about 2^SHIFT updates of a cell; `reset`
+    /// restarts changed cells at their log-odds probability).
     #[arg(long, value_parser = parse_estimator)]
     pub estimator: Option<ogm_core::gibbs::Estimator>,
     /// Tile visits (of 256) that go to changed tiles.
     #[arg(long)]
     pub hot_share: Option<u8>,
+    /// Candidates per patch (top-k of the prior).
+    #[arg(long)]
+    pub max_candidates: Option<u8>,
 }
 
 impl SamplerArgs {
@@ -163,6 +175,7 @@ impl SamplerArgs {
             data_candidate: self.data_candidate.unwrap_or(config.data_candidate),
             estimator: self.estimator.unwrap_or(config.estimator),
             hot_share: self.hot_share.unwrap_or(config.hot_share),
+            max_candidates: self.max_candidates.unwrap_or(config.max_candidates),
             ..config
         }
     }
@@ -179,13 +192,15 @@ pub fn parse_data_term(s: &str) -> Result<ogm_core::gibbs::DataTerm, String> {
     }
 }
 
-/// `counts`, `rb:SHIFT` or `rb:SHIFT:reset`.
+/// `counts`, or `avg:SHIFT` / `rb:SHIFT` followed by `:reset` (restart changed cells): the
+/// average of draws, or of conditional probabilities (Rao-Blackwellised).
 pub fn parse_estimator(s: &str) -> Result<ogm_core::gibbs::Estimator, String> {
     use ogm_core::gibbs::Estimator;
     let parts: Vec<&str> = s.split(':').collect();
+    let bad = || format!("`{s}`: expected counts, avg:SHIFT[:reset] or rb:SHIFT[:reset]");
     match parts.as_slice() {
         ["counts"] => Ok(Estimator::Counts),
-        ["rb", shift, rest @ ..] => {
+        [kind @ ("avg" | "rb"), shift, rest @ ..] => {
             let shift: u8 = shift
                 .parse()
                 .ok()
@@ -194,16 +209,15 @@ pub fn parse_estimator(s: &str) -> Result<ogm_core::gibbs::Estimator, String> {
             let reset_on_change = match rest {
                 [] => false,
                 ["reset"] => true,
-                _ => return Err(format!("`{s}`: expected rb:SHIFT or rb:SHIFT:reset")),
+                _ => return Err(bad()),
             };
-            Ok(Estimator::RaoBlackwell {
+            Ok(Estimator::Average {
                 shift,
                 reset_on_change,
+                rao_blackwell: *kind == "rb",
             })
         }
-        _ => Err(format!(
-            "`{s}`: expected counts, rb:SHIFT or rb:SHIFT:reset"
-        )),
+        _ => Err(bad()),
     }
 }
 
@@ -225,6 +239,8 @@ impl Default for FirmwareArgs {
             repeat_frames: 1,
             soak_scans: None,
             timeout: 300,
+            moving: false,
+            mission_scans: None,
             sampler: SamplerArgs::default(),
             accuracy: false,
             host_only: false,
@@ -432,7 +448,7 @@ impl<N: Count> Replay<N> {
         .map_err(|x| e("ray store", x))?;
         let mut gibbs = Gibbs::new(
             geometry,
-            BorderPrior,
+            BorderPrior::default(),
             forward,
             config.sampler_config(),
             SamplerBuffers {
@@ -1250,6 +1266,21 @@ fn rand_seed() -> u64 {
         .map_or(0, |d| d.as_nanos() as u64)
 }
 
+/// The simulation of a run: the paper's robot that scans when stopped, or with `--moving` /
+/// `--mission-scans` one that scans at the LD06's rate while it drives.
+pub fn sim_config(args: &FirmwareArgs) -> SimConfig {
+    let mut cfg = SimConfig::default();
+    if args.moving || args.mission_scans.is_some() {
+        cfg.explore =
+            crate::explore::ExploreConfig::moving(10.0, 0.4, args.mission_scans.unwrap_or(0));
+        if args.mission_scans.is_none() {
+            cfg.explore.max_stops = SimConfig::default().explore.max_stops * 25;
+        }
+        cfg.lidar.beams = 450;
+    }
+    cfg
+}
+
 /// The world of a run: `--map` (5 cm, cropped to the firmware grid) or a generated building.
 pub fn firmware_world(args: &FirmwareArgs) -> anyhow::Result<World> {
     let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
@@ -1306,7 +1337,7 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         fw::WIDTH,
         fw::HEIGHT
     );
-    let sim = simulate(&world, &SimConfig::default(), args.seed)?;
+    let sim = simulate(&world, &sim_config(args), args.seed)?;
     let mut scans = sim.scans.clone();
     if let Some(n) = args.max_scans {
         scans.truncate(n);
@@ -1468,6 +1499,7 @@ fn accuracy(
         data_candidate: config.data_candidate,
         estimator: config.estimator,
         hot_share: config.hot_share,
+        max_candidates: config.max_candidates,
         ..SamplingConfig::default()
     };
     let fw_cfg = crate::eval::with_firmware_bounds(host_cfg);
@@ -1480,7 +1512,7 @@ fn accuracy(
                 seed: args.seed + u64::from(run),
                 ..args.clone()
             })?;
-            s = simulate(&w, &SimConfig::default(), args.seed + u64::from(run))?;
+            s = simulate(&w, &sim_config(args), args.seed + u64::from(run))?;
             (&w, &s, s.scans.as_slice())
         };
         acc.scans.push(scans.len());

@@ -139,7 +139,12 @@ pub fn encode_run_with(
         let seq = u32::try_from(k)?;
         let packets = scan_packets(&s.beams, &mut ts)?;
         if garbage && k % 5 == 2 {
-            let mut junk = Vec::new();
+            // A truncated LD06 packet first, then random bytes, then a corrupted frame: the
+            // 47-byte candidate the truncated header opens ends inside the random bytes. (Right
+            // before a frame, it would take the frame's first bytes with it, and an 8-bit CRC
+            // accepts such a false packet once in 256 — a limit of sharing one UART between
+            // the lidar and the host, measured in docs/firmware.md.)
+            let mut junk = packets[..20.min(packets.len())].to_vec();
             for _ in 0..64 {
                 x ^= x << 13;
                 x ^= x >> 17;
@@ -151,7 +156,6 @@ pub fn encode_run_with(
                     _ => (x >> 16) as u8,
                 });
             }
-            junk.extend_from_slice(&packets[..20.min(packets.len())]);
             let mut bad = host_frame(&HostMsg::ScanEnd {
                 seq,
                 points: 12_345,

@@ -222,7 +222,15 @@ impl Prepared {
                 session(geometry, mapper, scans, map, prior, cfg, seed)?
             }
             Variant::L9 => session(geometry, mapper, scans, map, UnconditionedPrior, cfg, seed)?,
-            Variant::L9Border => session(geometry, mapper, scans, map, BorderPrior, cfg, seed)?,
+            Variant::L9Border => session(
+                geometry,
+                mapper,
+                scans,
+                map,
+                BorderPrior::default(),
+                cfg,
+                seed,
+            )?,
         };
         Ok(Prepared { inner })
     }

@@ -222,6 +222,26 @@ pub fn border_candidates(border: u16) -> Option<Candidates> {
     ))
 }
 
+/// The position of `border` among the stored borders (for [`slot_tables`]), or `None` if the
+/// table has no entry for it. What a lookup cache keys on.
+#[inline]
+pub fn border_slot(border: u16) -> Option<u16> {
+    border_index(border).and_then(|i| u16::try_from(i).ok())
+}
+
+/// The candidates (configurations, log-priors; most likely first) of stored border `slot`
+/// ([`border_slot`]) as flash tables.
+#[inline]
+pub fn slot_tables(slot: u16) -> Option<(&'static [u16], &'static [i16])> {
+    let i = usize::from(slot);
+    let s = usize::from(*table::CAND_START.get(i)?);
+    let e = usize::from(*table::CAND_START.get(i + 1)?);
+    Some((
+        table::CAND_CONFIG.get(s..e)?,
+        table::CAND_LOG_PRIOR.get(s..e)?,
+    ))
+}
+
 /// Whether `border` has its own entry in the table (otherwise [`candidates`] falls back).
 #[inline]
 pub fn border_seen(border: u16) -> bool {

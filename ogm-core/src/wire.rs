@@ -231,9 +231,10 @@ impl RunConfig {
                 f64::from(paper.sigma_milli_cells) / 1000.0,
             ),
             data_candidate: true,
-            estimator: Estimator::RaoBlackwell {
+            estimator: Estimator::Average {
                 shift: 3,
                 reset_on_change: true,
+                rao_blackwell: false,
             },
             hot_share: 192,
             burn_in_sweeps: 2,
@@ -814,9 +815,10 @@ mod tests {
             evidence_gain_q8: u16::MAX,
             evidence_free_q8: u16::MAX,
             data_candidate: true,
-            estimator: Estimator::RaoBlackwell {
+            estimator: Estimator::Average {
                 shift: u8::MAX,
                 reset_on_change: true,
+                rao_blackwell: true,
             },
             hot_share: u8::MAX,
         }

@@ -304,7 +304,7 @@ fn pose_outside_the_map_is_clipped() {
     let sc = cfg.sampler_config();
     let mut gibbs = Gibbs::new(
         g,
-        BorderPrior,
+        BorderPrior::default(),
         cfg.forward_model().unwrap(),
         sc,
         Buffers {
@@ -406,7 +406,7 @@ fn bad_settings_are_rejected_with_an_error() {
     ] {
         let r = Gibbs::new(
             g,
-            BorderPrior,
+            BorderPrior::default(),
             good.forward_model().unwrap(),
             sc,
             Buffers {

@@ -4,27 +4,28 @@
 ///
 /// * [`Estimator::Counts`] — the paper's: after burn-in, count how often each cell is occupied
 ///   in the sample, one sample of every cell per sweep (see the [`super`] module docs).
-/// * [`Estimator::RaoBlackwell`] — every patch update moves its cells' estimates towards the
-///   cell's *conditional* occupancy probability under Eq. 1 (the candidates' normalised weights
-///   summed over the candidates that occupy the cell), by `2^-shift` of the way: an
-///   exponentially-forgetting average of conditionals. A conditional carries the information of
-///   all candidates, not one 0/1 draw, so far fewer updates give the same precision; the
-///   forgetting lets the estimate follow a map that keeps changing online. Estimates start at
-///   the log-odds map's probability and, with [`super::Gibbs::note_changed`], restart there when
-///   a cell's evidence changes — so what has not been sampled yet reads as the traditional map,
-///   never as a stale or empty estimate.
+/// * [`Estimator::Average`] — every patch update moves its cells' estimates `2^-shift` of the
+///   way towards their new value: an exponentially-forgetting average that follows a map that
+///   keeps changing online. The value is the drawn sample, or with `rao_blackwell` the cell's
+///   *conditional* occupancy probability under Eq. 1 (the normalised weights of the candidates
+///   that occupy it), which carries the information of every candidate instead of one draw.
+///   Estimates start at the log-odds map's probability and, with `reset_on_change`
+///   ([`super::Gibbs::note_changed`]), restart there when a cell's evidence changes — so what has
+///   not been sampled yet reads as the traditional map, never as a stale or empty estimate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Estimator {
     /// Sample counts after burn-in.
     Counts,
-    /// Exponentially-forgetting average of conditional probabilities, weight `2^-shift`.
-    RaoBlackwell {
+    /// Exponentially-forgetting average per cell, weight `2^-shift` per update.
+    Average {
         /// Log2 of the averaging length, in updates of a cell (a cell is in 9 patches, so about
         /// 9 updates per sweep): 1 ..= 15.
         shift: u8,
         /// Restart a cell's estimate at its log-odds probability when a scan changes it.
         reset_on_change: bool,
+        /// Average conditional probabilities (Rao-Blackwellised) instead of the draws.
+        rao_blackwell: bool,
     },
 }
 
@@ -34,7 +35,7 @@ impl Estimator {
     pub fn resets(self) -> bool {
         matches!(
             self,
-            Estimator::RaoBlackwell {
+            Estimator::Average {
                 reset_on_change: true,
                 ..
             }

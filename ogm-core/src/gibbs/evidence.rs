@@ -41,10 +41,17 @@ pub enum DataTerm {
 }
 
 impl DataTerm {
-    /// Whether this term reads the ray store.
+    /// Whether this term reads the ray store (never without the `rays` feature, which is
+    /// required for [`DataTerm::Rays`] and [`DataTerm::Hybrid`]).
     #[inline]
     pub fn uses_rays(self) -> bool {
-        !matches!(self, DataTerm::Evidence)
+        cfg!(feature = "rays") && !matches!(self, DataTerm::Evidence)
+    }
+
+    /// Whether this build can run the term.
+    #[inline]
+    pub fn available(self) -> bool {
+        cfg!(feature = "rays") || matches!(self, DataTerm::Evidence)
     }
 }
 
@@ -122,27 +129,27 @@ pub(crate) fn patch_evidence(
     let mut e = PatchEvidence::default();
     let h = size / 2;
     let (x0, n) = (centre.x - h, size as usize);
+    let (mut known, mut occupied) = (0u32, 0u32);
     let mut bit = 0usize;
     for dy in -h..=h {
         let y = centre.y + dy;
         // Patch centres keep a margin from the map edge, so rows are whole; a row that is not
         // (only reachable through this function's own tests) reads as no evidence.
-        let row = if y >= 0 && x0 >= 0 && x0 as usize + n <= width {
+        if y >= 0 && x0 >= 0 && x0 as usize + n <= width {
             let start = y as usize * width + x0 as usize;
-            map.get(start..start + n).unwrap_or(&[])
-        } else {
-            &[]
-        };
-        for (k, l) in row.iter().enumerate() {
-            let b = bit + k;
-            e.known |= u16::from(l.0 != 0) << b;
-            e.occupied |= u16::from(l.0 > 0) << b;
-            if let Some(slot) = e.l.get_mut(b) {
-                *slot = l.0;
+            if let (Some(row), Some(out)) = (map.get(start..start + n), e.l.get_mut(bit..bit + n)) {
+                for (k, (o, l)) in out.iter_mut().zip(row).enumerate() {
+                    *o = l.0;
+                    let v = i32::from(l.0);
+                    // Sign bits, branch-free: −v < 0 iff v > 0; v | −v < 0 iff v ≠ 0.
+                    occupied |= ((v.wrapping_neg() as u32) >> 31) << (bit + k);
+                    known |= (((v | v.wrapping_neg()) as u32) >> 31) << (bit + k);
+                }
             }
         }
         bit += n;
     }
+    (e.known, e.occupied) = (known as u16, occupied as u16);
     e
 }
 

@@ -92,6 +92,16 @@ pub trait Count: Copy + Default {
             shift,
         ))
     }
+    /// [`Count::ema_bit`] of the `n` cells `counts[start..start + n]` towards bit `k` of `bits`
+    /// for cell `k` (cells out of range are skipped): what every patch update does per row.
+    #[inline]
+    fn average_row(counts: &mut [Self], start: usize, n: usize, bits: u32, shift: u8) {
+        if let Some(row) = counts.get_mut(start..start + n) {
+            for (k, c) in row.iter_mut().enumerate() {
+                *c = c.ema_bit(bits >> k & 1 != 0, shift);
+            }
+        }
+    }
     /// The value of probability `p_q16 / 2^16` (clamped to 1), rounded to nearest.
     #[inline]
     fn from_probability_q16(p_q16: u32) -> Self {
@@ -139,7 +149,56 @@ macro_rules! impl_count {
         }
     )*};
 }
-impl_count!(u8, u16, u32);
+impl_count!(u16, u32);
+
+impl Count for u8 {
+    const MAX: u32 = 255;
+    #[inline]
+    fn get(self) -> u32 {
+        u32::from(self)
+    }
+    #[inline]
+    fn set(v: u32) -> Self {
+        v.min(255) as u8
+    }
+    /// Three cells at once in one 32-bit word (SIMD within a register; the firmware's hot path):
+    /// `x ← t`, then `shift` times the bytewise halving add `x ← (x + m) / 2`, which leaves
+    /// `x = m + (t − m) / 2^shift` (each stage truncating, so a cell settles at 254 rather than
+    /// 255 when occupied, and reaches 0 when free). A fourth byte rides along unchanged (its
+    /// target is itself).
+    #[inline]
+    fn average_row(counts: &mut [Self], start: usize, n: usize, bits: u32, shift: u8) {
+        /// Bytes 0..3 = 0xFF where bit k of the index is set.
+        const TARGET: [u32; 8] = [
+            0x0000_0000,
+            0x0000_00FF,
+            0x0000_FF00,
+            0x0000_FFFF,
+            0x00FF_0000,
+            0x00FF_00FF,
+            0x00FF_FF00,
+            0x00FF_FFFF,
+        ];
+        let Some(w4) = counts.get_mut(start..start + 4).filter(|_| n == 3) else {
+            // Not a 3-cell row with a byte after it: one cell at a time.
+            if let Some(row) = counts.get_mut(start..start + n) {
+                for (k, c) in row.iter_mut().enumerate() {
+                    *c = c.ema_bit(bits >> k & 1 != 0, shift);
+                }
+            }
+            return;
+        };
+        let mut bytes = [0u8; 4];
+        bytes.copy_from_slice(w4);
+        let m = u32::from_le_bytes(bytes);
+        let mut x = TARGET.get((bits & 7) as usize).copied().unwrap_or(0) | (m & 0xFF00_0000);
+        for _ in 0..shift {
+            // Bytewise ⌊(x + m) / 2⌋ without carries between bytes.
+            x = (x & m) + (((x ^ m) & 0xFEFE_FEFE) >> 1);
+        }
+        w4.copy_from_slice(&x.to_le_bytes());
+    }
+}
 
 /// A candidate configuration with its log-prior (LSB units of [`crate::fixed::LSB_NATS`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -163,6 +222,13 @@ pub trait PatchPrior {
     /// of a cell, in [`crate::patch`]'s bit order) into `out`, most probable first, and returns
     /// how many were written: at least 1 whenever `out` is not empty.
     fn candidates(&self, border: u16, out: &mut [PatchCandidate]) -> usize;
+    /// The candidates of `border` as static tables (configurations, log-priors; most probable
+    /// first), when the prior stores them that way: lets the sampler's hot path read flash
+    /// directly instead of copying. `None` (the default): use [`PatchPrior::candidates`].
+    #[inline]
+    fn table(&mut self, _border: u16) -> Option<(&'static [u16], &'static [i16])> {
+        None
+    }
 }
 
 /// Sampler settings.
@@ -425,12 +491,13 @@ where
             && (2..=12).contains(&config.tile_shift)
             && (1..=MAX_BLOCK_GRID).contains(&config.block_grid)
             && config.p_rand_patch.is_finite()
+            && config.data.available()
             && config.floor_log_prior <= 0
             && config.evidence_gain_q8 <= evidence::MAX_GAIN_Q8
             && config.evidence_free_q8 <= evidence::MAX_GAIN_Q8
             && match config.estimator {
                 Estimator::Counts => true,
-                Estimator::RaoBlackwell { shift, .. } => (1..=15).contains(&shift),
+                Estimator::Average { shift, .. } => (1..=15).contains(&shift),
             };
         if !valid {
             return Err(Error::InvalidModel);
@@ -572,11 +639,11 @@ where
 
     /// The denominator of [`Gibbs::count`]: samples accumulated into the marginal counts
     /// (≤ `Count::MAX`, halves when full) with [`Estimator::Counts`]; `Count::MAX` with
-    /// [`Estimator::RaoBlackwell`], whose counts are probabilities scaled to `Count::MAX`.
+    /// [`Estimator::Average`], whose counts are probabilities scaled to `Count::MAX`.
     pub fn samples(&self) -> u32 {
         match self.config.estimator {
             Estimator::Counts => self.samples,
-            Estimator::RaoBlackwell { .. } => N::MAX,
+            Estimator::Average { .. } => N::MAX,
         }
     }
 
@@ -596,7 +663,7 @@ where
 
     /// Tells the sampler that a scan changed cell `index`'s log-odds to `now` (what
     /// [`crate::pipeline::insert_and_seed`] does for every cell it updates): marks its tile for
-    /// a visit ([`SamplerConfig::hot_share`]) and, with [`Estimator::RaoBlackwell`]'s
+    /// a visit ([`SamplerConfig::hot_share`]) and, with [`Estimator::Average`]'s
     /// `reset_on_change`, restarts its estimate at `now`'s probability.
     #[inline]
     pub fn note_changed(&mut self, index: usize, now: LogOdds) {
@@ -643,7 +710,7 @@ where
         match self.config.estimator {
             Estimator::Counts => self.buf.counts.as_mut().fill(N::default()),
             // Estimates start at the log-odds map's probabilities.
-            Estimator::RaoBlackwell { .. } => {
+            Estimator::Average { .. } => {
                 for (c, l) in self.buf.counts.as_mut().iter_mut().zip(map) {
                     *c = N::default().ema(estimate::probability_q16(*l), 0);
                 }
@@ -1037,13 +1104,23 @@ where
                 return;
             }
         }
+        if self.config.data == DataTerm::Evidence {
+            if let Some((configs, log_priors)) = self.prior.table(border) {
+                let new = self.evidence_update(map, centre, current, configs, log_priors);
+                if new != current {
+                    self.stats.changed += 1;
+                    self.apply(store, centre, new, None);
+                }
+                return;
+            }
+        }
         let mut cands = [PatchCandidate::default(); MAX_CANDIDATES + 1];
         let mut w = [0i32; MAX_CANDIDATES + 1];
         let n = self.candidates(map, centre, current, border, &mut cands, &mut w);
         if n <= 1 {
             self.stats.single_candidate += 1;
             let new = cands.first().map_or(current, |c| c.config);
-            self.rao_blackwell_single(centre, new);
+            self.average_config(centre, new);
             if new != current {
                 self.stats.changed += 1;
                 self.apply(store, centre, new, None);
@@ -1063,11 +1140,103 @@ where
         let mut q = [0u32; MAX_CANDIDATES + 1];
         let total = weights_q16(w.get(..n).unwrap_or(&[]), &mut q);
         let new = self.draw(cands, &q, total);
-        self.rao_blackwell(centre, cands, q.get(..n).unwrap_or(&[]), total);
+        self.rao_blackwell(centre, cands, q.get(..n).unwrap_or(&[]), total, new);
         if new != current {
             self.stats.changed += 1;
             self.apply(store, centre, new, crossings.as_ref());
         }
+    }
+
+    /// [`DataTerm::Evidence`]'s update straight from the prior's flash tables (the hot path on
+    /// the robot: no candidate copies, no ray work). The same distribution as the general path:
+    /// candidates are the top-k of `configs` plus, with [`SamplerConfig::data_candidate`], the
+    /// evidence's own configuration at the floor log-prior; weights are log-prior + evidence.
+    /// Returns the new configuration (and updates the estimates).
+    fn evidence_update(
+        &mut self,
+        map: &[LogOdds],
+        centre: CellCoord,
+        current: u16,
+        configs: &'static [u16],
+        log_priors: &'static [i16],
+    ) -> u16 {
+        let k = usize::from(self.config.max_candidates)
+            .min(MAX_CANDIDATES)
+            .min(configs.len())
+            .min(log_priors.len());
+        let (configs, log_priors) = (
+            configs.get(..k).unwrap_or(&[]),
+            log_priors.get(..k).unwrap_or(&[]),
+        );
+        let ev = patch_evidence(
+            map,
+            usize::from(self.geometry.width()),
+            centre,
+            i32::from(self.prior.size()),
+        );
+        let extra = if self.config.data_candidate {
+            let d = ev.data_config(current);
+            (!configs.contains(&d)).then_some(d)
+        } else {
+            None
+        };
+        let first = configs.first().copied().unwrap_or(current);
+        if extra.is_none() && k <= 1 {
+            self.stats.single_candidate += 1;
+            self.average_config(centre, first);
+            return first;
+        }
+        let (occ, free) = (self.ev_gain, self.ev_free_gain);
+        let floor = i32::from(self.config.floor_log_prior);
+        // Log-weights; the extra candidate last.
+        let mut w = [0i32; MAX_CANDIDATES + 1];
+        for ((wi, &c), &lp) in w.iter_mut().zip(configs).zip(log_priors) {
+            *wi = i32::from(lp) + ev.of(c, occ, free);
+        }
+        let n = match extra {
+            Some(d) => {
+                if let Some(wi) = w.get_mut(k) {
+                    *wi = floor + ev.of(d, occ, free);
+                }
+                k + 1
+            }
+            None => k,
+        };
+        let mut q = [0u32; MAX_CANDIDATES + 1];
+        let total = weights_q16(w.get(..n).unwrap_or(&[]), &mut q);
+        let config_of = |j: usize| configs.get(j).copied().or(extra).unwrap_or(current);
+        let mut r = below(self.rng.next_u32(), total.max(1));
+        let mut new = first;
+        for (j, &qj) in q.iter().take(n).enumerate() {
+            if r < qj {
+                new = config_of(j);
+                break;
+            }
+            r -= qj;
+        }
+        let rb = matches!(
+            self.config.estimator,
+            Estimator::Average {
+                rao_blackwell: true,
+                ..
+            }
+        );
+        if rb {
+            let mut cands = [PatchCandidate::default(); MAX_CANDIDATES + 1];
+            for (j, c) in cands.iter_mut().enumerate().take(n) {
+                c.config = config_of(j);
+            }
+            self.rao_blackwell(
+                centre,
+                cands.get(..n).unwrap_or(&[]),
+                q.get(..n).unwrap_or(&[]),
+                total,
+                new,
+            );
+        } else {
+            self.average_config(centre, new);
+        }
+        new
     }
 
     /// The candidates of the patch at `centre` (the prior's top-k, plus the evidence's own
@@ -1127,51 +1296,70 @@ where
         n
     }
 
-    /// [`Estimator::RaoBlackwell`]: moves the estimate of every cell of the patch at `centre`
-    /// towards its conditional occupancy probability, Σ of the weights `q` of the candidates
-    /// that occupy it over their sum `total`.
+    /// [`Estimator::Average`] after a multi-candidate update that drew `drawn`: with
+    /// `rao_blackwell`, moves every cell's estimate towards its conditional occupancy
+    /// probability, Σ of the weights `q` of the candidates that occupy it over their sum `total`;
+    /// otherwise towards the draw.
     fn rao_blackwell(
         &mut self,
         centre: CellCoord,
         cands: &[PatchCandidate],
         q: &[u32],
         total: u32,
+        drawn: u16,
     ) {
-        let Estimator::RaoBlackwell { shift, .. } = self.config.estimator else {
+        let Estimator::Average {
+            shift,
+            rao_blackwell,
+            ..
+        } = self.config.estimator
+        else {
             return;
         };
-        if total == 0 {
+        if !rao_blackwell || total == 0 {
+            self.average_config(centre, drawn);
             return;
         }
-        // Each cell's occupied weight, one pass over the candidates' set bits.
+        // Each cell's occupied weight, one pass over the candidates' set bits; weights in Q11
+        // so that occ · 2^16 fits a u32 (Σ q ≤ 17 · 2^11 < 2^16) and the division is one
+        // hardware instruction.
         let mut occ = [0u32; 9];
+        let mut tot = 0u32;
         for (k, &x) in cands.iter().zip(q) {
+            let x = x >> 5;
+            tot += x;
             let mut c = k.config;
-            while c != 0 {
+            while c != 0 && x != 0 {
                 let b = c.trailing_zeros() as usize;
                 c &= c - 1;
                 if let Some(o) = occ.get_mut(b) {
-                    *o += x; // ≤ 17 · 2^16: no overflow.
+                    *o += x;
                 }
             }
         }
-        // p = occ · 2^16 / total with one division: occ ≤ total < 2^21, so occ · inv fits a u64.
-        let inv = (1u64 << 48) / u64::from(total);
+        let tot = tot.max(1);
         self.for_patch_counts(centre, |bit, c| {
             let o = occ.get(bit as usize).copied().unwrap_or(0);
-            *c = c.ema(((u64::from(o) * inv) >> 32) as u32, shift);
+            *c = c.ema((o << 16) / tot, shift);
         });
     }
 
-    /// [`Estimator::RaoBlackwell`] for a single candidate: each cell's conditional is 0 or 1.
+    /// [`Estimator::Average`] towards a configuration: each cell's value is 0 or 1.
     #[inline]
-    fn rao_blackwell_single(&mut self, centre: CellCoord, config: u16) {
-        let Estimator::RaoBlackwell { shift, .. } = self.config.estimator else {
+    fn average_config(&mut self, centre: CellCoord, config: u16) {
+        let Estimator::Average { shift, .. } = self.config.estimator else {
             return;
         };
-        self.for_patch_counts(centre, |bit, c| {
-            *c = c.ema_bit(config >> bit & 1 != 0, shift);
-        });
+        let size = i32::from(self.prior.size());
+        let h = size / 2;
+        let width = usize::from(self.geometry.width());
+        let counts = self.buf.counts.as_mut();
+        for (r, dy) in (-h..=h).enumerate() {
+            // Patch centres keep the prior's margin from the edge: the row is in the map.
+            let start = (centre.y + dy) as usize * width + (centre.x - h) as usize;
+            let bits = u32::from(config) >> (r as i32 * size);
+            N::average_row(counts, start, size as usize, bits, shift);
+        }
     }
 
     /// Calls `f(bit, count)` for the marginal count of every cell of the patch at `centre`.
