@@ -4,6 +4,7 @@
 #![warn(missing_docs)]
 
 pub mod baselines;
+pub mod bench_insert;
 pub mod carmen;
 pub mod demo;
 pub mod eval;

@@ -18,6 +18,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Commands {
+    /// Online insertion throughput of ogm_core::Mapper on CARMEN logs, in the MRPT peer's unit
+    /// (cells walked per second) next to cells updated per second.
+    BenchInsert(host_sim::bench_insert::BenchInsertArgs),
     /// The main job: map the embedded default world online and score it against ground truth.
     Demo {
         /// Output directory for PNGs and report.json.
@@ -206,6 +209,7 @@ fn main() -> ExitCode {
         Commands::ExactOneD { out, seed } => host_sim::baselines::fig2::run(&out, seed),
         Commands::PriorStats { json } => host_sim::prior::prior_stats_cmd(json),
         Commands::Firmware(args) => host_sim::firmware::cli(&args),
+        Commands::BenchInsert(args) => host_sim::bench_insert::cli(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -2,12 +2,15 @@
 //! and `reference::ReferenceMapper` (f64) on the same synthetic indoor scans.
 //!
 //! `cargo bench -p ogm-core --bench insert` (results and discussion: docs/benchmarks.md,
-//! "Online insertion").
+//! "Online insertion", and docs/insertion.md).
 //!
 //! Input: a 500 × 500 map of 5 cm cells (25 m square); a 10 m × 7 m flat (outer walls, two inner
 //! walls with doorways, furniture, an open door in the outer wall) ray-cast in f64 from poses drawn
 //! with a seeded RNG; 360 beams at 1°, LD06-like 12 m maximum range, ±15 mm of range noise and 1 %
 //! of beams lost (`NoReturn`). Everything is deterministic, so runs are comparable.
+//!
+//! `insert/hahnel/fixed` is `insert_scan`, `insert/hahnel/fixed_with` is `insert_scan_with` with a
+//! callback that counts first observations (the firmware's seeding path).
 //!
 //! Throughput is `Throughput::Elements(cells updated)`, where a cell counts once per scan
 //! (`ScanStats::cells_hit + cells_freed`: the mapper updates every cell at most once per scan). The
@@ -248,6 +251,25 @@ fn bench_insert(c: &mut Criterion) {
             for s in &beam_scans {
                 black_box(fixed.insert_scan(&s.pose, black_box(&s.beams)).unwrap());
             }
+        })
+    });
+    // The firmware's path: every updated cell reported (it seeds the sampler with the cells
+    // seen for the first time), which takes the sweep's per-cell loop instead of the lane-wise
+    // update `insert_scan` uses on a 64-bit host.
+    let mut reported = fixed_mapper(hahnel);
+    group.bench_function(BenchmarkId::new("hahnel", "fixed_with"), |b| {
+        b.iter(|| {
+            let mut first_seen = 0u32;
+            for s in &beam_scans {
+                black_box(
+                    reported
+                        .insert_scan_with(&s.pose, black_box(&s.beams), |_, before, _| {
+                            first_seen += u32::from(before.0 == 0);
+                        })
+                        .unwrap(),
+                );
+            }
+            black_box(first_seen)
         })
     });
     let mut reference = reference_mapper(hahnel);

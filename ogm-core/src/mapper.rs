@@ -4,20 +4,23 @@
 //! some beam gets the occupied update even if other beams of the same scan pass through it
 //! (Cartographer does the same). This makes the result independent of the order of beams and of
 //! how densely beams overlap near the robot. A bitset with one bit per cell (caller-provided,
-//! `⌈K/32⌉` words) records which cells this scan already touched; only the words of the rows the
-//! scan's rays span are cleared afterwards.
+//! `⌈K/32⌉` words) records which cells this scan touched; only the words of the scan's box are
+//! cleared afterwards.
 //!
-//! Speed (docs/benchmarks.md, "Online insertion"): rays are walked with 32-bit state and, in the
-//! common case, no division ([`crate::ray`]); each ray is marked in chunks by a loop that has the
-//! registers to itself, and the chunk's first touches are updated after it.
+//! Speed (docs/insertion.md, docs/benchmarks.md "Online insertion"): the [`Mapper`]'s beam model
+//! marks every ray's cells without testing them, run by run where a ray's runs allow it
+//! ([`crate::ray`]), then applies the hits in beam order and sweeps the marks of the scan's box
+//! for the freed cells (`insert_beam_model`).
 //!
 //! Beam handling: a `Hit` closer than `min_range_mm` is dropped (counted); a `Hit` at or beyond
 //! `max_range_mm`, and every `NoReturn`, frees cells up to `max_range_mm` and marks nothing
 //! occupied. Rays are clipped to the grid exactly (see [`crate::ray`]), so poses and readings
 //! outside the map are harmless.
 //!
-//! The classification (which cell gets which update) is shared by the fixed-point [`Mapper`] and
-//! the f64 reference ([`crate::reference`]), so they can only differ in arithmetic.
+//! The classification (which cell gets which update) is [`classify_scan`], which the f64
+//! reference ([`crate::reference`]) and the [`Mapper`]'s cone model run; the [`Mapper`]'s beam
+//! model computes the same updates its own way (property-tested against it, cell for cell), so
+//! the fixed-point and f64 mappers can only differ in arithmetic.
 
 use crate::angle::Angle;
 use crate::error::{Error, Result};
@@ -275,7 +278,8 @@ pub fn scan_box(
 
 /// Classifies one scan into per-cell updates, calling `sink(index, update)` at most once per
 /// cell, hits first. `marks` must hold at least `marks_len(geometry.len())` zeroed words and is
-/// left zeroed. Shared by the fixed-point mapper and the f64 reference.
+/// left zeroed. The f64 reference's classification, and the fixed-point mapper's for the cone
+/// model (its beam model makes the same updates in `insert_beam_model`).
 pub fn classify_scan(
     geometry: &GridGeometry,
     cfg: &MapperConfig,
@@ -483,6 +487,268 @@ fn nearest_beam(beams: &[Beam], phi: Angle) -> Option<&Beam> {
     }
 }
 
+/// A cell update with the mapper's increments and clamp, in `i32`: the bounds lie inside the
+/// `i16` range, so clamping the exact sum equals [`Clamp::apply`]'s clamp of the saturated one,
+/// and all four values stay in registers.
+#[derive(Clone, Copy)]
+struct Update {
+    occ: i32,
+    free: i32,
+    min: i32,
+    max: i32,
+}
+
+impl Update {
+    fn new(config: &MapperConfig) -> Self {
+        Update {
+            occ: i32::from(config.model.occ_increment().0),
+            free: i32::from(config.model.free_increment().0),
+            min: i32::from(config.clamp.min().0),
+            max: i32::from(config.clamp.max().0),
+        }
+    }
+
+    /// `value + delta` clamped to the bounds (`|value|, |delta| ≤ 2^15`, so the sum fits an
+    /// `i32`; `min < max`, so the result lies in `[min, max]` ⊂ `i16`).
+    #[inline(always)]
+    fn apply(&self, value: LogOdds, delta: i32) -> LogOdds {
+        LogOdds((i32::from(value.0) + delta).max(self.min).min(self.max) as i16)
+    }
+
+    /// [`Update::apply`] of the free increment to each of the 32 cells whose bit is set in
+    /// `bits`, without a data-dependent branch: every lane is computed and the set ones kept,
+    /// which a host compiles to a few vector instructions per word instead of a loop over its
+    /// bits. In `i16` with a saturating add, which equals the `i32` sum clamped, since the
+    /// bounds lie inside the `i16` range.
+    #[inline(always)]
+    fn free_lanes(&self, cells: &mut [LogOdds; 32], bits: u32) {
+        // All three came from `i16` values.
+        let (d, lo, hi) = (self.free as i16, self.min as i16, self.max as i16);
+        for (b, cell) in cells.iter_mut().enumerate() {
+            let v = cell.0.saturating_add(d).max(lo).min(hi);
+            cell.0 = if bits & (1 << b) != 0 { v } else { cell.0 };
+        }
+    }
+}
+
+/// The cells a scan's rays can have marked: the bounding box, clipped to the grid, of the end
+/// cells of the rays that cross the grid (a ray's cells lie between its end cells).
+struct ScanBox {
+    x0: i32,
+    y0: i32,
+    x1: i32,
+    y1: i32,
+}
+
+impl ScanBox {
+    fn empty() -> Self {
+        ScanBox {
+            x0: i32::MAX,
+            y0: i32::MAX,
+            x1: i32::MIN,
+            y1: i32::MIN,
+        }
+    }
+
+    #[inline]
+    fn cover(&mut self, a: CellCoord, b: CellCoord) {
+        self.x0 = self.x0.min(a.x.min(b.x));
+        self.x1 = self.x1.max(a.x.max(b.x));
+        self.y0 = self.y0.min(a.y.min(b.y));
+        self.y1 = self.y1.max(a.y.max(b.y));
+    }
+}
+
+/// Hit cells remembered between marking and applying the hits, so that their end points are
+/// computed once per scan; hits beyond this many are computed again.
+const HIT_TABLE: usize = if cfg!(target_pointer_width = "64") {
+    1024
+} else {
+    480
+};
+
+/// "No cell": a hit whose end cell is outside the grid. Grid indices are < 2^32 − 1 (a grid
+/// has at most 65535² cells).
+const NO_CELL: u32 = u32::MAX;
+
+/// The beam model's insertion, in three passes over the scan:
+/// 1. **mark**: every used beam's ray, clipped to the grid and *including* a hit's end cell, sets
+///    its cells' bits in `marks` (run by run where the ray is x-major, [`IndexWalk::mark_all`]);
+///    the box of the marked cells is kept, and each hit's end cell is remembered;
+/// 2. **hits**, in beam order: a hit cell's bit was set by its own ray, so the first beam that
+///    hits it finds the bit set, clears it and applies the occupied update; later hits of the
+///    same cell find it clear;
+/// 3. **frees**: the bits still set are the cells the rays crossed that no beam hit (hits win),
+///    found word by word over the box, each freed once and its word cleared, in increasing
+///    index order, which walks the grid the way it is laid out in memory.
+///
+/// The cells and updates are exactly [`classify_scan`]'s (`tests::fast_insert_matches_
+/// classification`); only the order of the free updates differs, which cannot change the map
+/// since each cell changes at most once per scan. Marking no longer tests bits (a test per
+/// walked cell, where rays overlap near the robot, was most of the old cost) and a cell is
+/// updated where the sweep finds it rather than through a queue.
+#[allow(clippy::too_many_arguments)]
+fn insert_beam_model<const REPORT: bool>(
+    g: &GridGeometry,
+    cfg: &MapperConfig,
+    pose: &Pose,
+    beams: &[Beam],
+    marks: &mut [u32],
+    cells: &mut [LogOdds],
+    update: Update,
+    on_update: &mut impl FnMut(usize, LogOdds, LogOdds),
+) -> ScanStats {
+    let mut stats = ScanStats::default();
+    let to_cell = PointToCell::new(g);
+    let origin = to_cell.cell(i64::from(pose.x_mm), i64::from(pose.y_mm));
+    let end_cell = |range: u32, angle: Angle| {
+        let (x, y) = pose.beam_end(angle, range);
+        to_cell.cell(x, y)
+    };
+    let (width, height) = (g.width(), g.height());
+    let origin_inside = g.contains(origin);
+    let mut hits = [NO_CELL; HIT_TABLE];
+    let mut n_hits = 0usize;
+    let mut area = ScanBox::empty();
+    // Pass 1: mark every ray.
+    for beam in beams {
+        let Some((range, hit)) = beam_extent(cfg, beam) else {
+            stats.beams_dropped += 1;
+            continue;
+        };
+        stats.beams_used += 1;
+        let end = end_cell(range, beam.angle);
+        if hit {
+            if let Some(slot) = hits.get_mut(n_hits) {
+                // In-grid indices are < 2^32 − 1 (see NO_CELL).
+                *slot = g.index(end).map_or(NO_CELL, |i| i as u32);
+            }
+            n_hits += 1;
+        }
+        let ray = Ray::new(origin, end);
+        // Both ends inside: the whole ray is (what `clip` would find, without its arithmetic).
+        let steps = if origin_inside && g.contains(end) {
+            Steps {
+                first: 0,
+                last: ray.steps(),
+            }
+        } else {
+            match ray.clip(width, height) {
+                Some(steps) => steps,
+                None => continue,
+            }
+        };
+        match ray.index_walk(steps, width) {
+            Some(walk) => walk.mark_all(marks),
+            None => ray.for_each_index(steps, width, |_, i| {
+                if let Some(word) = marks.get_mut(i / 32) {
+                    *word |= 1 << (i % 32);
+                }
+            }),
+        }
+        area.cover(origin, end);
+    }
+    // Pass 2: hits, in beam order; each in-grid hit cell's bit was set by its own ray.
+    let mut k = 0usize;
+    for beam in beams {
+        let Some((range, true)) = beam_extent(cfg, beam) else {
+            continue;
+        };
+        let index = match hits.get(k) {
+            Some(&NO_CELL) => None,
+            Some(&i) => Some(i as usize),
+            None => g.index(end_cell(range, beam.angle)),
+        };
+        k += 1;
+        let Some(i) = index else { continue };
+        let (w, bit) = (i / 32, 1u32 << (i % 32));
+        if let (Some(word), Some(cell)) = (marks.get_mut(w), cells.get_mut(i)) {
+            if *word & bit != 0 {
+                *word &= !bit;
+                let before = *cell;
+                *cell = update.apply(before, update.occ);
+                stats.cells_hit += 1;
+                on_update(i, before, *cell);
+            }
+        }
+    }
+    // Pass 3: free what is left, clearing the marks.
+    let max_x = i32::from(width) - 1;
+    let max_y = i32::from(height) - 1;
+    let (x0, x1) = (area.x0.max(0), area.x1.min(max_x));
+    let (y0, y1) = (area.y0.max(0), area.y1.min(max_y));
+    if x0 <= x1 && y0 <= y1 {
+        // All four lie in the grid now, so these are in-grid cell indices.
+        let w = usize::from(width);
+        let (x0, x1) = (x0 as usize, x1 as usize);
+        let mut next = 0usize;
+        for y in y0 as usize..=y1 as usize {
+            // Words of this row's part of the box, less any the previous row's part ended in.
+            let first = ((y * w + x0) / 32).max(next);
+            let last = (y * w + x1) / 32;
+            if first > last {
+                continue;
+            }
+            stats.cells_freed += free_words::<REPORT>(marks, first, last, cells, update, on_update);
+            next = last + 1;
+        }
+    }
+    stats
+}
+
+/// Whether the sweep updates a word's 32 cells lane-wise ([`Update::free_lanes`]) when nobody
+/// needs to hear about each cell: on 64-bit hosts, whose vector units do 32 lanes in a handful of
+/// instructions; a 32-bit microcontroller has no such unit and visits the set bits one by one.
+const LANE_SWEEP: bool = cfg!(target_pointer_width = "64");
+
+/// Frees the cells whose bits are set in `marks[first..=last]`, in increasing index order, and
+/// clears those words; returns how many cells it freed. `REPORT`: call `on_update` for each.
+#[inline(always)]
+fn free_words<const REPORT: bool>(
+    marks: &mut [u32],
+    first: usize,
+    last: usize,
+    cells: &mut [LogOdds],
+    update: Update,
+    on_update: &mut impl FnMut(usize, LogOdds, LogOdds),
+) -> u32 {
+    let mut freed = 0u32;
+    let Some(words) = marks.get_mut(first..=last) else {
+        return 0;
+    };
+    for (k, word) in words.iter_mut().enumerate() {
+        if *word == 0 {
+            continue;
+        }
+        let mut bits = core::mem::take(word);
+        // The words of in-grid cells: base + 31 < 2^32 · 32, no overflow.
+        let base = (first + k) * 32;
+        if LANE_SWEEP && !REPORT {
+            // A whole word of cells (all but possibly the grid's last word).
+            let lanes = cells
+                .get_mut(base..base + 32)
+                .and_then(|c| <&mut [LogOdds; 32]>::try_from(c).ok());
+            if let Some(lanes) = lanes {
+                update.free_lanes(lanes, bits);
+                freed += bits.count_ones();
+                continue;
+            }
+        }
+        while bits != 0 {
+            let i = base + bits.trailing_zeros() as usize;
+            // Clears the lowest set bit.
+            bits &= bits - 1;
+            if let Some(cell) = cells.get_mut(i) {
+                let before = *cell;
+                *cell = update.apply(before, update.free);
+                freed += 1;
+                on_update(i, before, *cell);
+            }
+        }
+    }
+    freed
+}
+
 /// The online mapper: a log-odds grid plus the per-scan mark bitset.
 #[derive(Clone, Debug)]
 pub struct Mapper<S, M> {
@@ -516,14 +782,28 @@ where
 
     /// Integrates one scan taken at `pose`.
     pub fn insert_scan(&mut self, pose: &Pose, beams: &[Beam]) -> Result<ScanStats> {
-        self.insert_scan_with(pose, beams, |_, _, _| {})
+        self.insert::<false>(pose, beams, |_, _, _| {})
     }
 
     /// [`Mapper::insert_scan`] that also reports every cell it changes as
-    /// `on_update(index, before, after)`, in update order (each cell at most once per scan). The
-    /// sampler uses it to seed cells the moment they are first observed (`before == 0`).
+    /// `on_update(index, before, after)`, each cell exactly once per scan: with the beam model
+    /// first the hit cells in beam order, then the freed cells in increasing index order; with
+    /// the cone model in [`classify_scan`]'s order. The sampler uses it to seed cells the moment
+    /// they are first observed (`before == 0`).
     #[inline]
     pub fn insert_scan_with(
+        &mut self,
+        pose: &Pose,
+        beams: &[Beam],
+        on_update: impl FnMut(usize, LogOdds, LogOdds),
+    ) -> Result<ScanStats> {
+        self.insert::<true>(pose, beams, on_update)
+    }
+
+    /// Both of the above; `REPORT = false` promises that `on_update` does nothing, so the free
+    /// updates may skip it.
+    #[inline]
+    fn insert<const REPORT: bool>(
         &mut self,
         pose: &Pose,
         beams: &[Beam],
@@ -534,30 +814,43 @@ where
             marks,
             config,
         } = self;
-        // `Clamp::apply` in i32: the bounds lie inside the i16 range, so clamping the exact sum
-        // equals clamping the saturated one, and the compiler keeps all four values in registers.
-        let (occ, free) = (
-            i32::from(config.model.occ_increment().0),
-            i32::from(config.model.free_increment().0),
-        );
-        let (min, max) = (
-            i32::from(config.clamp.min().0),
-            i32::from(config.clamp.max().0),
-        );
+        let update = Update::new(config);
         let geometry = *grid.geometry();
         let cells = grid.cells_mut();
-        classify_scan(&geometry, config, pose, beams, marks.as_mut(), |i, u| {
-            let delta = match u {
-                CellUpdate::Hit => occ,
-                CellUpdate::Free => free,
-            };
-            if let Some(cell) = cells.get_mut(i) {
-                let before = *cell;
-                // In [min, max] ⊂ i16.
-                cell.0 = (i32::from(cell.0) + delta).clamp(min, max) as i16;
-                on_update(i, before, *cell);
+        match config.model.kind() {
+            InverseModelKind::Beam => {
+                let marks = marks.as_mut();
+                if marks.len() < marks_len(geometry.len()) {
+                    return Err(Error::BufferSize {
+                        expected: marks_len(geometry.len()),
+                        actual: marks.len(),
+                    });
+                }
+                Ok(insert_beam_model::<REPORT>(
+                    &geometry,
+                    config,
+                    pose,
+                    beams,
+                    marks,
+                    cells,
+                    update,
+                    &mut on_update,
+                ))
             }
-        })
+            InverseModelKind::Cone { .. } => {
+                classify_scan(&geometry, config, pose, beams, marks.as_mut(), |i, u| {
+                    let delta = match u {
+                        CellUpdate::Hit => update.occ,
+                        CellUpdate::Free => update.free,
+                    };
+                    if let Some(cell) = cells.get_mut(i) {
+                        let before = *cell;
+                        *cell = update.apply(before, delta);
+                        on_update(i, before, *cell);
+                    }
+                })
+            }
+        }
     }
 
     /// The map.
@@ -666,6 +959,75 @@ mod tests {
         (calls, stats)
     }
 
+    /// Inserts `scans` (the pose moving a little between them) with `insert_scan_with` and
+    /// `insert_scan` into maps that start from `start` repeated (values outside the clamp
+    /// included) and checks them against `classify_scan` applied with `Clamp::apply`: the same
+    /// hits in the same order, the same freed cells in increasing index order, the same
+    /// statistics, the same map, bit for bit, scan after scan; and the marks left zeroed.
+    fn check_against_classification(
+        g: GridGeometry,
+        cfg: MapperConfig,
+        (x, y, heading): (i32, i32, u16),
+        scans: &[Vec<Beam>],
+        start: &[i16],
+    ) -> std::result::Result<(), TestCaseError> {
+        let cells: Vec<LogOdds> = (0..g.len())
+            .map(|i| LogOdds(start[i % start.len()]))
+            .collect();
+        let grid = LogOddsGrid::new(g, cells.clone()).unwrap();
+        let mut mapper =
+            Mapper::new(grid.clone(), vec![0u32; marks_len(g.len()) + 1], cfg).unwrap();
+        // `insert_scan` takes the lane-wise sweep on 64-bit hosts.
+        let mut quiet = Mapper::new(grid, vec![0u32; marks_len(g.len())], cfg).unwrap();
+        let mut want = cells;
+        let mut marks = vec![0u32; marks_len(g.len())];
+        for (k, beams) in scans.iter().enumerate() {
+            let pose = Pose {
+                x_mm: x.wrapping_add(k as i32 * 37),
+                y_mm: y,
+                heading: Angle(heading),
+            };
+            let mut got = Vec::new();
+            let stats = mapper
+                .insert_scan_with(&pose, beams, |i, before, after| {
+                    got.push((i, before, after))
+                })
+                .unwrap();
+            let mut expected = Vec::new();
+            let want_stats = classify_scan(&g, &cfg, &pose, beams, &mut marks, |i, u| {
+                let before = want[i];
+                let delta = match u {
+                    CellUpdate::Hit => cfg.model.occ_increment(),
+                    CellUpdate::Free => cfg.model.free_increment(),
+                };
+                want[i] = cfg.clamp.apply(before, delta);
+                expected.push((i, before, want[i], u));
+            })
+            .unwrap();
+            prop_assert_eq!(stats, want_stats);
+            prop_assert_eq!(quiet.insert_scan(&pose, beams).unwrap(), want_stats);
+            let hits = (stats.cells_hit as usize).min(got.len());
+            let want_hits: Vec<_> = expected
+                .iter()
+                .filter(|c| c.3 == CellUpdate::Hit)
+                .map(|c| (c.0, c.1, c.2))
+                .collect();
+            let mut want_frees: Vec<_> = expected
+                .iter()
+                .filter(|c| c.3 == CellUpdate::Free)
+                .map(|c| (c.0, c.1, c.2))
+                .collect();
+            want_frees.sort_unstable();
+            prop_assert_eq!(&got[..hits], &want_hits[..]);
+            prop_assert_eq!(&got[hits..], &want_frees[..]);
+            prop_assert_eq!(mapper.grid().cells(), &want[..]);
+            prop_assert_eq!(quiet.grid().cells(), &want[..]);
+            prop_assert!(mapper.marks.iter().all(|&w| w == 0));
+            prop_assert!(quiet.marks.iter().all(|&w| w == 0));
+        }
+        Ok(())
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(1000))]
 
@@ -692,6 +1054,61 @@ mod tests {
             prop_assert_eq!(stats, want_stats);
             prop_assert_eq!(calls, want_calls);
             prop_assert!(marks.iter().all(|&w| w == 0));
+        }
+
+        /// The mapper's beam-model insertion makes exactly the updates of the classification
+        /// (the algorithm it replaced, which the f64 reference still runs): see
+        /// [`check_against_classification`].
+        #[test]
+        fn fast_insert_matches_classification(g in geometry(), x in mm(), y in mm(), heading in any::<u16>(),
+                                              scans in prop::collection::vec(beams(), 1..4),
+                                              max_range in 1u32..10_000, min_range in 0u32..300,
+                                              start in prop::collection::vec(any::<i16>(), 16),
+                                              p_occ in 0.55f64..0.97, p_free in 0.03f64..0.45,
+                                              wide_clamp in any::<bool>()) {
+            let mut cfg = MapperConfig::new(max_range.max(min_range + 1));
+            cfg.min_range_mm = min_range;
+            cfg.model = InverseSensorModel::beam(p_occ, p_free, 0.5).unwrap();
+            if wide_clamp {
+                cfg.clamp = Clamp::new(LogOdds(-i16::MAX), LogOdds(i16::MAX)).unwrap();
+            }
+            check_against_classification(g, cfg, (x, y, heading), &scans, &start)?;
+        }
+
+        /// The same with what skipping the cells shared with the previous ray is for: dense,
+        /// sorted scans from a pose on the map, many beams per octant and long rays.
+        #[test]
+        fn dense_scans_match_classification(w in 3u16..90, h in 1u16..90, cell in 10u32..120,
+                                            fx in 0.0f64..1.0, fy in 0.0f64..1.0, heading in any::<u16>(),
+                                            n in 8usize..400, jitter in prop::collection::vec(0u16..200, 400),
+                                            ranges in prop::collection::vec(prop_oneof![6 => 0u32..12_000, 1 => Just(u32::MAX)], 400),
+                                            max_range in 500u32..10_000) {
+            let g = GridGeometry::new(w, h, cell, -1_000, 2_000).unwrap();
+            let x = -1_000 + (fx * f64::from(w) * f64::from(cell)) as i32;
+            let y = 2_000 + (fy * f64::from(h) * f64::from(cell)) as i32;
+            let mut beams: Vec<Beam> = (0..n)
+                .map(|k| Beam {
+                    angle: Angle(((k * 65_536 / n) as u16).wrapping_add(jitter[k])),
+                    range: match ranges[k] { u32::MAX => Range::NoReturn, r => Range::Hit(r) },
+                })
+                .collect();
+            beams.sort_by_key(|b| b.angle.0);
+            let cfg = MapperConfig::new(max_range);
+            check_against_classification(g, cfg, (x, y, heading), &[beams.clone(), beams], &[3, -2000, 7000, 0])?;
+        }
+
+        /// Marking a walk run by run sets exactly the bits of its cells.
+        #[test]
+        fn run_marking_sets_the_walked_cells(x0 in -20i32..80, y0 in -20i32..80, x1 in -20i32..80, y1 in -20i32..80,
+                                             w in 1u16..70, h in 1u16..9) {
+            let r = Ray::new(CellCoord { x: x0, y: y0 }, CellCoord { x: x1, y: y1 });
+            let Some(steps) = r.clip(w, h) else { return Ok(()); };
+            let Some(walk) = r.index_walk(steps, w) else { return Ok(()); };
+            let mut want = vec![0u32; marks_len(usize::from(w) * usize::from(h))];
+            r.for_each_index(steps, w, |_, i| want[i / 32] |= 1 << (i % 32));
+            let mut got = vec![0u32; want.len()];
+            walk.mark_all(&mut got);
+            prop_assert_eq!(got, want);
         }
 
         /// Both marking loops (branch-free for hosts, branchy for microcontrollers) mark the
