@@ -44,6 +44,7 @@ mod local;
 mod priors;
 mod schedule;
 mod segment;
+mod sweep;
 
 use rand_core::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro128PlusPlus;
@@ -192,9 +193,15 @@ impl Count for u8 {
         bytes.copy_from_slice(w4);
         let m = u32::from_le_bytes(bytes);
         let mut x = TARGET.get((bits & 7) as usize).copied().unwrap_or(0) | (m & 0xFF00_0000);
-        for _ in 0..shift {
-            // Bytewise ⌊(x + m) / 2⌋ without carries between bytes.
-            x = (x & m) + (((x ^ m) & 0xFEFE_FEFE) >> 1);
+        // Bytewise ⌊(x + m) / 2⌋ without carries between bytes.
+        let half = |x: u32| (x & m) + (((x ^ m) & 0xFEFE_FEFE) >> 1);
+        if shift == 3 {
+            // The robot's setting, unrolled.
+            x = half(half(half(x)));
+        } else {
+            for _ in 0..shift {
+                x = half(x);
+            }
         }
         w4.copy_from_slice(&x.to_le_bytes());
     }
@@ -370,6 +377,7 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     cy1: i32,
     tile: (i32, i32, i32, i32),
     visit_left: u32,
+    raster: sweep::Raster,
     // Sweeps and marginals.
     sweep_len: u32,
     in_sweep: u32,
@@ -543,6 +551,7 @@ where
             cy1,
             tile: (0, 0, 0, 0),
             visit_left: 0,
+            raster: sweep::Raster::default(),
             sweep_len: (k as u32).div_ceil(cells_per_patch).max(1),
             in_sweep: 0,
             cursor: 0,
@@ -824,6 +833,9 @@ where
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
         self.set_gains(&store.stats());
+        if self.config.data == DataTerm::Evidence && self.prior.size() == 3 {
+            return self.step_raster(store, map, budget);
+        }
         for _ in 0..budget {
             if self.visit_left == 0 {
                 self.start_visit(store);
@@ -1089,31 +1101,65 @@ where
         let cy = y0 + below(r & 0xffff_0000, (y1 - y0 + 1) as u32) as i32;
         let centre = CellCoord { x: cx, y: cy };
         let (current, border) = self.config_and_border(centre);
-        if self.rand_period > 0 {
-            // Invariant: the gap is ≥ 1 while random patches are on.
-            self.rand_gap = self.rand_gap.saturating_sub(1);
-            if self.rand_gap == 0 {
-                self.rand_gap = 1 + below(self.rng.next_u32(), self.rand_period);
-                self.stats.random_patches += 1;
-                let size = i32::from(self.prior.size());
-                let new = (self.rng.next_u32() & ((1u32 << (size * size)) - 1)) as u16;
-                if new != current {
-                    self.stats.changed += 1;
-                    self.apply(store, centre, new, None);
-                }
-                return;
-            }
+        if self.random_patch_due() {
+            self.random_patch(store, centre, current);
+            return;
         }
-        if self.config.data == DataTerm::Evidence {
-            if let Some((configs, log_priors)) = self.prior.table(border) {
-                let new = self.evidence_update(map, centre, current, configs, log_priors);
-                if new != current {
-                    self.stats.changed += 1;
-                    self.apply(store, centre, new, None);
-                }
-                return;
-            }
+        self.update_at(store, map, centre, current, border);
+    }
+
+    /// Counts down to the next random patch (`p_randPatch`): whether this update is one.
+    #[inline]
+    fn random_patch_due(&mut self) -> bool {
+        if self.rand_period == 0 {
+            return false;
         }
+        // Invariant: the gap is ≥ 1 while random patches are on.
+        self.rand_gap = self.rand_gap.saturating_sub(1);
+        if self.rand_gap > 0 {
+            return false;
+        }
+        self.rand_gap = 1 + below(self.rng.next_u32(), self.rand_period);
+        true
+    }
+
+    /// Sets a uniformly random configuration at `centre` (Algorithm 1's `p_randPatch` move);
+    /// returns it.
+    fn random_patch<S, R>(
+        &mut self,
+        store: &mut RayStore<S, R>,
+        centre: CellCoord,
+        current: u16,
+    ) -> u16
+    where
+        S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
+        R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
+    {
+        self.stats.random_patches += 1;
+        let size = i32::from(self.prior.size());
+        let new = (self.rng.next_u32() & ((1u32 << (size * size)) - 1)) as u16;
+        if new != current {
+            self.stats.changed += 1;
+            self.apply(store, centre, new, None);
+        }
+        new
+    }
+
+    /// One Gibbs update of the patch at `centre` whose configuration and border are `current`
+    /// and `border`: Eq. 1 over the candidates, the estimates, the new configuration written.
+    /// Returns it.
+    fn update_at<S, R>(
+        &mut self,
+        store: &mut RayStore<S, R>,
+        map: &[LogOdds],
+        centre: CellCoord,
+        current: u16,
+        border: u16,
+    ) -> u16
+    where
+        S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
+        R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
+    {
         let mut cands = [PatchCandidate::default(); MAX_CANDIDATES + 1];
         let mut w = [0i32; MAX_CANDIDATES + 1];
         let n = self.candidates(map, centre, current, border, &mut cands, &mut w);
@@ -1125,7 +1171,7 @@ where
                 self.stats.changed += 1;
                 self.apply(store, centre, new, None);
             }
-            return;
+            return new;
         }
         let cands = cands.get(..n).unwrap_or(&[]);
         // Crossings computed for the likelihood are reused to update the ray caches if the patch
@@ -1145,6 +1191,7 @@ where
             self.stats.changed += 1;
             self.apply(store, centre, new, crossings.as_ref());
         }
+        new
     }
 
     /// [`DataTerm::Evidence`]'s update straight from the prior's flash tables (the hot path on
@@ -1152,11 +1199,13 @@ where
     /// candidates are the top-k of `configs` plus, with [`SamplerConfig::data_candidate`], the
     /// evidence's own configuration at the floor log-prior; weights are log-prior + evidence.
     /// Returns the new configuration (and updates the estimates).
+    #[allow(clippy::too_many_arguments)]
     fn evidence_update(
         &mut self,
         map: &[LogOdds],
         centre: CellCoord,
         current: u16,
+        (known, occupied): (u16, u16),
         configs: &'static [u16],
         log_priors: &'static [i16],
     ) -> u16 {
@@ -1168,14 +1217,8 @@ where
             configs.get(..k).unwrap_or(&[]),
             log_priors.get(..k).unwrap_or(&[]),
         );
-        let ev = patch_evidence(
-            map,
-            usize::from(self.geometry.width()),
-            centre,
-            i32::from(self.prior.size()),
-        );
         let extra = if self.config.data_candidate {
-            let d = ev.data_config(current);
+            let d = (current & !known) | occupied;
             (!configs.contains(&d)).then_some(d)
         } else {
             None
@@ -1188,6 +1231,13 @@ where
         }
         let (occ, free) = (self.ev_gain, self.ev_free_gain);
         let floor = i32::from(self.config.floor_log_prior);
+        // The patch's log-odds, read only now that weights are needed.
+        let ev = patch_evidence(
+            map,
+            usize::from(self.geometry.width()),
+            centre,
+            i32::from(self.prior.size()),
+        );
         // Log-weights; the extra candidate last.
         let mut w = [0i32; MAX_CANDIDATES + 1];
         for ((wi, &c), &lp) in w.iter_mut().zip(configs).zip(log_priors) {
@@ -1581,17 +1631,35 @@ where
                 },
             );
         }
-        // …then the cells.
+        // …then the cells, a row of the patch at a time (patch centres keep the prior's margin
+        // from the edge, so every row is in the map).
         let size = 2 * h + 1;
+        let width = usize::from(self.geometry.width());
         for py in 0..size {
-            for px in 0..size {
-                let c = CellCoord {
-                    x: centre.x - h + px,
-                    y: centre.y - h + py,
-                };
-                if let Some(i) = self.geometry.index(c) {
-                    self.set_occupied(i, config & (1 << (py * size + px)) != 0);
-                }
+            let y = centre.y - h + py;
+            let x = centre.x - h;
+            if y < 0 || x < 0 || x + size > i32::from(self.geometry.width()) {
+                continue;
+            }
+            let bits = (u32::from(config) >> (py * size)) & ((1 << size) - 1);
+            self.set_bits(y as usize * width + x as usize, size as u32, bits);
+        }
+    }
+
+    /// Writes the `n` ≤ 25 bits `v` into the sample at cells `index..index + n`.
+    #[inline]
+    fn set_bits(&mut self, index: usize, n: u32, v: u32) {
+        let words = self.buf.sample.as_mut();
+        let (w, off) = (index / 32, (index % 32) as u32);
+        let mask = (1u32 << n) - 1;
+        if let Some(lo) = words.get_mut(w) {
+            *lo = (*lo & !(mask << off)) | (v & mask) << off;
+        }
+        if off + n > 32 {
+            // The rest spills into the next word.
+            let s = 32 - off;
+            if let Some(hi) = words.get_mut(w + 1) {
+                *hi = (*hi & !(mask >> s)) | (v & mask) >> s;
             }
         }
     }

@@ -1,0 +1,228 @@
+//! The per-cell evidence data term (`DataTerm::Evidence`): its conditional against an f64
+//! reference, the raster sweep's incremental window (debug assertions inside the sampler check
+//! it against fresh reads on every update), "strong evidence wins", and the bytewise averaging
+//! against a scalar reference.
+
+use ogm_core::fixed::LSB_NATS;
+use ogm_core::forward_model::ForwardModel;
+use ogm_core::gibbs::{
+    block_words, free_evidence_q8, BorderPrior, Buffers, Count, DataTerm, Estimator, Gibbs,
+    LocalRay, SamplerConfig, FLOOR_LOG_PRIOR,
+};
+use ogm_core::patch::{border_of, patch_of};
+use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::{CellCoord, GridGeometry, LogOdds};
+use rand_core::{Rng, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
+
+/// Uniform in `lo..hi` (the modulo bias is irrelevant here).
+fn range<T: TryFrom<i64>>(rng: &mut Xoshiro256PlusPlus, lo: i64, hi: i64) -> T
+where
+    T::Error: std::fmt::Debug,
+{
+    T::try_from(lo + (rng.next_u64() % (hi - lo) as u64) as i64).unwrap()
+}
+
+type Store = RayStore<Vec<StoredScan>, Vec<StoredRay>>;
+type Sampler = Gibbs<BorderPrior, Vec<u32>, Vec<u8>, Vec<LocalRay>, Vec<u32>, u8>;
+
+fn setup(g: GridGeometry, cfg: SamplerConfig) -> (Sampler, Store) {
+    let buf = Buffers {
+        sample: vec![0; g.len().div_ceil(32)],
+        counts: vec![0; g.len()],
+        local: vec![LocalRay::default(); 1],
+        blocks: vec![0; block_words(1, cfg.block_grid)],
+    };
+    let s = Gibbs::new(g, BorderPrior::default(), ForwardModel::pcsm(), cfg, buf).unwrap();
+    let st = RayStore::new(g, 1000, 0, vec![StoredScan::default(); 1], vec![StoredRay::default(); 1])
+        .unwrap();
+    (s, st)
+}
+
+fn evidence_config(seed: u64) -> SamplerConfig {
+    SamplerConfig {
+        data: DataTerm::Evidence,
+        evidence_gain_q8: 512,
+        evidence_free_q8: free_evidence_q8(3.0),
+        data_candidate: true,
+        estimator: Estimator::Average {
+            shift: 3,
+            reset_on_change: true,
+            rao_blackwell: false,
+        },
+        hot_share: 192,
+        seed,
+        ..SamplerConfig::default()
+    }
+}
+
+/// A 40 × 40 map of random log-odds in whole observations (±1024 LSB steps, clamped), with
+/// unobserved (0) cells, walls and open space mixed.
+fn random_map(rng: &mut Xoshiro256PlusPlus, g: GridGeometry) -> Vec<LogOdds> {
+    (0..g.len())
+        .map(|_| LogOdds(1024 * range::<i16>(rng, -5, 6) * i16::from(rng.next_u32() % 5 != 0)))
+        .collect()
+}
+
+#[test]
+fn evidence_conditional_matches_f64_reference() {
+    let g = GridGeometry::new(40, 40, 50, 0, 0).unwrap();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+    let cfg = evidence_config(1);
+    let (occ_gain, free_gain) = (
+        f64::from(cfg.evidence_gain_q8) / 256.0,
+        f64::from(cfg.evidence_gain_q8) / 256.0 * f64::from(cfg.evidence_free_q8) / 256.0,
+    );
+    let mut worst = 0f64;
+    let mut checked = 0;
+    for round in 0..4 {
+        let map = random_map(&mut rng, g);
+        let (mut s, mut st) = setup(g, evidence_config(round));
+        s.reset(&map, &mut st).unwrap();
+        s.step(&mut st, &map, 2000); // wander to some state
+        for _ in 0..200 {
+            let c = CellCoord {
+                x: range(&mut rng, 2, 38),
+                y: range(&mut rng, 2, 38),
+            };
+            // The reference: the same candidates, f64 weights.
+            let mut window = 0u32;
+            for r in 0..5 {
+                for k in 0..5 {
+                    let i = (c.y - 2 + r) as usize * 40 + (c.x - 2 + k) as usize;
+                    window |= u32::from(s.occupied(i)) << (5 * r + k);
+                }
+            }
+            let (current, border) = (patch_of(window), border_of(window));
+            let mut buf = [ogm_core::prior::Candidate {
+                config: 0,
+                log_prior: 0,
+            }; 16];
+            let (n, _) = ogm_core::prior::candidates_into(border, &mut buf);
+            let mut cands: Vec<(u16, f64)> = buf[..n]
+                .iter()
+                .map(|c| (c.config, f64::from(c.log_prior) * LSB_NATS))
+                .collect();
+            let l = |bit: u32| {
+                let (r, k) = (bit as i32 / 3, bit as i32 % 3);
+                map[(c.y - 1 + r) as usize * 40 + (c.x - 1 + k) as usize].0
+            };
+            let data = (0..9).fold(current, |d, b| match l(b).signum() {
+                1 => d | 1 << b,
+                -1 => d & !(1 << b),
+                _ => d,
+            });
+            if !cands.iter().any(|(c, _)| *c == data) {
+                cands.push((data, f64::from(FLOOR_LOG_PRIOR) * LSB_NATS));
+            }
+            let logw: Vec<f64> = cands
+                .iter()
+                .map(|&(cfg, lp)| {
+                    lp + (0..9)
+                        .filter(|b| cfg & (1 << b) != 0)
+                        .map(|b| {
+                            let v = f64::from(l(b));
+                            v * if v > 0.0 { occ_gain } else { free_gain } * LSB_NATS
+                        })
+                        .sum::<f64>()
+                })
+                .collect();
+            let max = logw.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let z: f64 = logw.iter().map(|w| (w - max).exp()).sum();
+            let mut out = [(0u16, 0f64); 17];
+            let got = s.conditional(&mut st, &map, c, &mut out);
+            assert_eq!(got, cands.len(), "at {c:?}");
+            for ((cfg, p), (rc, w)) in out[..got].iter().zip(cands.iter().zip(&logw)) {
+                assert_eq!(*cfg, rc.0);
+                worst = worst.max((p - (w - max).exp() / z).abs());
+            }
+            checked += 1;
+        }
+    }
+    eprintln!("{checked} patches, worst probability difference {worst:.5}");
+    // Q16 weights from a 512-entry exp2 table, and the gains rounded to Q8: 0.005.
+    assert!(worst < 0.005, "worst {worst}");
+}
+
+#[test]
+fn strong_evidence_wins_over_the_prior() {
+    // A map observed everywhere, five times (clamped), by a precise sensor (σ = 1 cell: free
+    // evidence at full weight): thin (one-cell) walls the corpus rarely shows, a lone post, open
+    // space. The sampler must reproduce it exactly.
+    let g = GridGeometry::new(48, 48, 50, 0, 0).unwrap();
+    let wall = |x: usize, y: usize| x == 20 || y == 30 || (x == 8 && y == 8);
+    let map: Vec<LogOdds> = (0..g.len())
+        .map(|i| LogOdds(if wall(i % 48, i / 48) { 5120 } else { -5120 }))
+        .collect();
+    let (mut s, mut st) = setup(
+        g,
+        SamplerConfig {
+            evidence_free_q8: free_evidence_q8(1.0),
+            // No p_randPatch moves: one late random patch would be legitimately wrong.
+            p_rand_patch: 0.0,
+            ..evidence_config(3)
+        },
+    );
+    s.reset(&map, &mut st).unwrap();
+    // Start from the opposite of the evidence, then sweep.
+    for i in 0..g.len() {
+        s.seed(i, !wall(i % 48, i / 48));
+    }
+    s.step(&mut st, &map, 400_000);
+    let inner = |i: usize| (2..46).contains(&(i % 48)) && (2..46).contains(&(i / 48));
+    let wrong: Vec<usize> = (0..g.len())
+        .filter(|&i| inner(i) && s.occupied(i) != wall(i % 48, i / 48))
+        .collect();
+    assert!(wrong.is_empty(), "{} cells disagree with the evidence: {wrong:?}", wrong.len());
+    // And the estimates followed: every inner cell within 0.1 of its evidence.
+    for i in (0..g.len()).filter(|&i| inner(i)) {
+        let p = s.marginal(i).unwrap();
+        assert!((p - f32::from(u8::from(wall(i % 48, i / 48)))).abs() < 0.1, "{i}: {p}");
+    }
+}
+
+#[test]
+fn raster_sweep_keeps_its_window_in_step() {
+    // Random maps and states, scans between steps (the map changes under the sampler): the
+    // sampler's debug assertions compare its incremental window and masks with fresh reads on
+    // every update (this test runs in the debug profile).
+    let g = GridGeometry::new(37, 29, 50, 0, 0).unwrap();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
+    let mut map = random_map(&mut rng, g);
+    let (mut s, mut st) = setup(g, evidence_config(2));
+    s.reset(&map, &mut st).unwrap();
+    for round in 0..20 {
+        // Change some evidence, as a scan would, and tell the sampler.
+        for _ in 0..50 {
+            let i: usize = range(&mut rng, 0, g.len() as i64);
+            map[i] = LogOdds(1024 * range::<i16>(&mut rng, -5, 6));
+            s.note_changed(i, map[i]);
+        }
+        s.step(&mut st, &map, 1000 + round * 37);
+    }
+    let st = s.stats();
+    assert!(st.updates > 20_000 && st.changed > 0 && st.tile_visits > 10, "{st:?}");
+}
+
+#[test]
+fn bytewise_averaging_matches_the_scalar_rule() {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(1);
+    for _ in 0..20_000 {
+        let cells: Vec<u8> = (0..6).map(|_| rng.next_u32() as u8).collect();
+        let (bits, shift): (u32, u8) = (range(&mut rng, 0, 8), range(&mut rng, 1, 6));
+        let mut fast = cells.clone();
+        u8::average_row(&mut fast, 1, 3, bits, shift);
+        // x ← t, then `shift` times x ← ⌊(x + m) / 2⌋: x = m + (t − m)/2^shift, truncated per
+        // halving.
+        let mut want = cells.clone();
+        for k in 0..3 {
+            let m = u32::from(cells[1 + k]);
+            let mut x = if bits >> k & 1 != 0 { 255 } else { 0 };
+            for _ in 0..shift {
+                x = (x + m) / 2;
+            }
+            want[1 + k] = x as u8;
+        }
+        assert_eq!(fast, want, "{cells:?} bits {bits:03b} shift {shift}");
+    }
+}
