@@ -30,12 +30,12 @@ use crate::memory::{self, MapBuffers, BLOCK_WORDS, CELLS, MARK_WORDS, SAMPLE_WOR
 use crate::selftest;
 
 type MapperT = Mapper<&'static mut [LogOdds; CELLS], &'static mut [u32; MARK_WORDS]>;
-type StoreT = RayStore<&'static mut [StoredScan; sz::SCANS], &'static mut [StoredRay; sz::RAYS]>;
+type StoreT = RayStore<&'static mut [StoredScan; memory::SCANS], &'static mut [StoredRay; memory::RAYS]>;
 type GibbsT = Gibbs<
     BorderPrior,
     &'static mut [u32; SAMPLE_WORDS],
     &'static mut [u8; CELLS],
-    &'static mut [LocalRay; sz::LOCAL_RAYS],
+    &'static mut [LocalRay; memory::LOCAL_RAYS],
     &'static mut [u32; BLOCK_WORDS],
     u8,
 >;
@@ -212,9 +212,9 @@ impl App {
             height: sz::HEIGHT,
             tile_edge: sz::TILE_EDGE,
             max_beams: sz::MAX_BEAMS as u32,
-            ray_capacity: sz::RAYS as u32,
-            scan_capacity: sz::SCANS as u32,
-            local_capacity: sz::LOCAL_RAYS as u32,
+            ray_capacity: memory::RAYS as u32,
+            scan_capacity: memory::SCANS as u32,
+            local_capacity: memory::LOCAL_RAYS as u32,
             count_max: u32::from(u8::MAX),
         };
         self.send(link, &DeviceMsg::Hello(hello));
@@ -637,9 +637,9 @@ pub fn run<L: Read + ReadReady + Write>(link: &mut L, timer: &Timer) -> i32 {
         "memory: {=usize} B grid, {=usize} B counts, {=usize} rays, {=usize} scans, {=usize} local rays, {=usize} beams/scan",
         core::mem::size_of::<[LogOdds; CELLS]>(),
         CELLS,
-        sz::RAYS,
-        sz::SCANS,
-        sz::LOCAL_RAYS,
+        memory::RAYS,
+        memory::SCANS,
+        memory::LOCAL_RAYS,
         sz::MAX_BEAMS
     );
     app.hello(link);

@@ -17,6 +17,13 @@ pub const CELLS: usize = sz::CELLS;
 pub const MARK_WORDS: usize = marks_len(CELLS);
 /// Words of the sampler's map sample (one bit per cell).
 pub const SAMPLE_WORDS: usize = CELLS.div_ceil(32);
+/// Ray store and tile-visit sizes: the ray data terms' (feature `rays`), else one of each — the
+/// per-cell evidence term stores no rays, and the 24 KiB go to the stack.
+pub const RAYS: usize = if cfg!(feature = "rays") { sz::RAYS } else { 1 };
+/// See [`RAYS`].
+pub const SCANS: usize = if cfg!(feature = "rays") { sz::SCANS } else { 1 };
+/// See [`RAYS`].
+pub const LOCAL_RAYS: usize = if cfg!(feature = "rays") { sz::LOCAL_RAYS } else { 1 };
 
 /// The log-odds map: 256 × 256 × 2 B = 128 KiB.
 static GRID: StaticBuf<[LogOdds; CELLS]> = StaticBuf::new([LogOdds::ZERO; CELLS]);
@@ -27,13 +34,13 @@ static SAMPLE: StaticBuf<[u32; SAMPLE_WORDS]> = StaticBuf::new([0; SAMPLE_WORDS]
 /// The sampler's marginal counts, `u8`: 64 KiB.
 static COUNTS: StaticBuf<[u8; CELLS]> = StaticBuf::new([0; CELLS]);
 /// The ray store's rays: 6 B each.
-static RAYS: StaticArray<StoredRay, { sz::RAYS }> = StaticArray::new();
+static RAY_BUF: StaticArray<StoredRay, { RAYS }> = StaticArray::new();
 /// The ray store's scans: 20 B each.
-static SCANS: StaticArray<StoredScan, { sz::SCANS }> = StaticArray::new();
+static SCAN_BUF: StaticArray<StoredScan, { SCANS }> = StaticArray::new();
 /// The sampler's per-tile ray list: 24 B each.
-static LOCAL: StaticArray<LocalRay, { sz::LOCAL_RAYS }> = StaticArray::new();
+static LOCAL_BUF: StaticArray<LocalRay, { LOCAL_RAYS }> = StaticArray::new();
 /// Which local rays touch which block of a tile visit (8 × 8 blocks): one bit per (block, ray).
-pub const BLOCK_WORDS: usize = block_words(sz::LOCAL_RAYS, sz::BLOCK_GRID);
+pub const BLOCK_WORDS: usize = block_words(LOCAL_RAYS, sz::BLOCK_GRID);
 static BLOCKS: StaticBuf<[u32; BLOCK_WORDS]> = StaticBuf::new([0; BLOCK_WORDS]);
 /// The scan being received: 12 B per beam.
 static SCAN: StaticBuf<ScanBuf<{ sz::MAX_BEAMS }>> = StaticBuf::new(ScanBuf::new());
@@ -52,9 +59,9 @@ pub struct MapBuffers {
     pub marks: &'static mut [u32; MARK_WORDS],
     pub sample: &'static mut [u32; SAMPLE_WORDS],
     pub counts: &'static mut [u8; CELLS],
-    pub rays: &'static mut [StoredRay; sz::RAYS],
-    pub scans: &'static mut [StoredScan; sz::SCANS],
-    pub local: &'static mut [LocalRay; sz::LOCAL_RAYS],
+    pub rays: &'static mut [StoredRay; RAYS],
+    pub scans: &'static mut [StoredScan; SCANS],
+    pub local: &'static mut [LocalRay; LOCAL_RAYS],
     pub blocks: &'static mut [u32; BLOCK_WORDS],
 }
 
@@ -74,9 +81,9 @@ pub fn take() -> Option<Buffers> {
             marks: MARKS.take()?,
             sample: SAMPLE.take()?,
             counts: COUNTS.take()?,
-            rays: RAYS.take_filled(StoredRay::default)?,
-            scans: SCANS.take_filled(StoredScan::default)?,
-            local: LOCAL.take_filled(LocalRay::default)?,
+            rays: RAY_BUF.take_filled(StoredRay::default)?,
+            scans: SCAN_BUF.take_filled(StoredScan::default)?,
+            local: LOCAL_BUF.take_filled(LocalRay::default)?,
             blocks: BLOCKS.take()?,
         },
         scan: SCAN.take()?,

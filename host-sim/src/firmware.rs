@@ -400,7 +400,19 @@ pub struct Sizes {
     pub local: usize,
 }
 
-/// The firmware's compile-time sizes.
+impl Sizes {
+    /// The ray store's sizes as a firmware reports them in its Hello (one of each without its
+    /// `rays` feature).
+    pub fn of(hello: &HelloInfo) -> Sizes {
+        Sizes {
+            rays: (hello.ray_capacity as usize).max(1),
+            scans: (hello.scan_capacity as usize).max(1),
+            local: (hello.local_capacity as usize).max(1),
+        }
+    }
+}
+
+/// The compile-time sizes of the firmware built with its `rays` feature.
 pub const FIRMWARE_SIZES: Sizes = Sizes {
     rays: fw::RAYS,
     scans: fw::SCANS,
@@ -763,18 +775,16 @@ fn compare(input: &[u8], g: &Groups, c: &mut Checker) -> anyhow::Result<()> {
     ensure!(
         (hello.width, hello.height, hello.tile_edge) == (fw::WIDTH, fw::HEIGHT, fw::TILE_EDGE)
             && hello.max_beams as usize == fw::MAX_BEAMS
-            && hello.ray_capacity as usize == fw::RAYS
-            && hello.scan_capacity as usize == fw::SCANS
-            && hello.local_capacity as usize == fw::LOCAL_RAYS
             && hello.count_max == 255,
         "the firmware's sizes {hello:?} are not ogm_core::wire::firmware_sizes (rebuild it?)"
     );
+    let sizes = Sizes::of(hello);
     let edge = usize::from(fw::TILE_EDGE);
     let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
     let scratch = StreamedMap::new(w, h, edge);
     let (machine, counters) = replay::<u8>(
         input,
-        FIRMWARE_SIZES,
+        sizes,
         |seq| g.scans.get(&seq).map(|s| s.report.sampler_updates),
         |ev| match ev {
             ReplayEvent::Scan(seq, report, m) => {
@@ -1239,9 +1249,10 @@ fn noise_report(input: &RunInput, corrupted: &[usize], g: &Groups) -> anyhow::Re
             surviving.extend_from_slice(bytes);
         }
     }
+    let sizes = g.hello.as_ref().map_or(FIRMWARE_SIZES, Sizes::of);
     let (machine, _) = replay::<u8>(
         &surviving,
-        FIRMWARE_SIZES,
+        sizes,
         |seq| g.scans.get(&seq).map(|s| s.report.sampler_updates),
         |_| {},
     )?;

@@ -226,3 +226,33 @@ fn bytewise_averaging_matches_the_scalar_rule() {
         assert_eq!(fast, want, "{cells:?} bits {bits:03b} shift {shift}");
     }
 }
+
+#[test]
+fn border_prior_caches_return_what_the_table_does() {
+    use ogm_core::gibbs::{PatchCandidate, PatchPrior};
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(4);
+    let mut cached = BorderPrior::default();
+    let plain = BorderPrior::default();
+    // Few distinct borders, so both caches hit and get replaced.
+    let borders: Vec<u16> = (0..40).map(|_| rng.next_u32() as u16).chain([0, 0xFFFF]).collect();
+    for _ in 0..5000 {
+        let b = borders[range::<usize>(&mut rng, 0, borders.len() as i64)];
+        let k: usize = range(&mut rng, 1, 17);
+        let (mut x, mut y) = ([PatchCandidate::default(); 16], [PatchCandidate::default(); 16]);
+        let n = cached.candidates_cached(b, &mut x[..k]);
+        assert_eq!(n, plain.candidates(b, &mut y[..k]), "border {b:016b}, k {k}");
+        // The same top-k, up to which of equally likely candidates fills the last places.
+        let lps = |c: &[PatchCandidate]| c.iter().map(|p| p.log_prior).collect::<Vec<_>>();
+        assert_eq!(lps(&x[..n]), lps(&y[..n]), "border {b:016b}, k {k}");
+        let mut all = [PatchCandidate::default(); 16];
+        let m = plain.candidates(b, &mut all);
+        assert!(x[..n].iter().all(|c| all[..m].contains(c)), "border {b:016b}, k {k}");
+        match cached.table(b) {
+            Some((configs, lps)) => {
+                assert!(configs.len() >= n && configs[..n].iter().zip(&x[..n]).all(|(c, p)| *c == p.config));
+                assert!(lps[..n].iter().zip(&x[..n]).all(|(l, p)| i32::from(*l) == p.log_prior));
+            }
+            None => assert!(!ogm_core::prior::border_seen(b)),
+        }
+    }
+}

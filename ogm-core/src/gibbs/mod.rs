@@ -229,6 +229,12 @@ pub trait PatchPrior {
     /// of a cell, in [`crate::patch`]'s bit order) into `out`, most probable first, and returns
     /// how many were written: at least 1 whenever `out` is not empty.
     fn candidates(&self, border: u16, out: &mut [PatchCandidate]) -> usize;
+    /// [`PatchPrior::candidates`] for the sampler, which may remember results (the default does
+    /// not): the same candidates for the same `border` and `out.len()`.
+    #[inline]
+    fn candidates_cached(&mut self, border: u16, out: &mut [PatchCandidate]) -> usize {
+        self.candidates(border, out)
+    }
     /// The candidates of `border` as static tables (configurations, log-priors; most probable
     /// first), when the prior stores them that way: lets the sampler's hot path read flash
     /// directly instead of copying. `None` (the default): use [`PatchPrior::candidates`].
@@ -1293,7 +1299,7 @@ where
     /// configuration with [`SamplerConfig::data_candidate`]) into `cands`, and in `w` their
     /// log-prior plus the evidence term; returns how many.
     fn candidates(
-        &self,
+        &mut self,
         map: &[LogOdds],
         centre: CellCoord,
         current: u16,
@@ -1304,7 +1310,7 @@ where
         let k = usize::from(self.config.max_candidates).min(MAX_CANDIDATES);
         let mut n = self
             .prior
-            .candidates(border, cands.get_mut(..k).unwrap_or(&mut []))
+            .candidates_cached(border, cands.get_mut(..k).unwrap_or(&mut []))
             .min(k);
         let use_ev = self.ev_gain != 0;
         if !use_ev && !self.config.data_candidate {
