@@ -20,7 +20,8 @@ use ogm_core::pipeline::insert_and_seed;
 use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
 use ogm_core::wire::firmware_sizes as sz;
 use ogm_core::wire::{
-    self, Budget, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello, Layer, LinkCounters,
+    self, Budget, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello, IdleReport, Layer,
+    LinkCounters,
     RunConfig, SamplerReport, ScanReport, StoreReport, Tile,
 };
 use ogm_core::{Beam, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose};
@@ -48,7 +49,8 @@ const TILES_Y: usize = HEIGHT.div_ceil(EDGE);
 const TILES: usize = TILES_X * TILES_Y;
 const DIRTY_WORDS: usize = TILES.div_ceil(32);
 
-/// Sampler updates between two looks at the clock under a time budget (~16 × 300 instructions).
+/// Sampler updates between two looks at the clock under a time budget (~16 × 900 instructions
+/// = 14 µs at 1 GHz of QEMU icount; each call re-reads the sampler's window once).
 const CHUNK: u32 = 16;
 
 /// How long to wait at boot for the first byte from a host before running the self-test.
@@ -262,6 +264,10 @@ impl App {
                 After::ScanDone
             }
             Step::Finish => After::Finish,
+            Step::Idle { seq, period_us } => {
+                self.idle(link, timer, seq, period_us);
+                After::ScanDone
+            }
             Step::Error(e) => {
                 let (code, detail) = match e {
                     LinkError::Ld06(ogm_core::ld06::Ld06Error::Crc) => (ErrorCode::Link, 0),
@@ -277,6 +283,31 @@ impl App {
                 After::Nothing
             }
         }
+    }
+
+    /// An idle period: the sampler alone for `period_us` of board time, then its report.
+    pub fn idle<W: Write>(&mut self, link: &mut W, timer: &Timer, seq: u32, period_us: u32) {
+        let Some(m) = self.machine.as_deref_mut() else {
+            self.report_error(link, ErrorCode::NoConfig, 0);
+            return;
+        };
+        let t0 = timer.now();
+        let updates = sample_until(m, timer, t0, period_us, u32::MAX);
+        let ticks = ticks(t0, timer.now());
+        self.totals.updates += u64::from(updates);
+        self.totals.sampler_ticks += u64::from(ticks);
+        info!(
+            "idle {=u32}: {=u32} sampler updates in {=u32} ticks",
+            seq, updates, ticks
+        );
+        self.send(
+            link,
+            &DeviceMsg::Idle(IdleReport {
+                seq,
+                sampler_updates: updates,
+                sampler_ticks: ticks,
+            }),
+        );
     }
 
     /// Counts a UART receive error.
@@ -502,20 +533,25 @@ fn run_budget(m: &mut Machine, timer: &Timer, t0: u32) -> u32 {
         Budget::Time {
             period_us,
             max_updates,
-        } => {
-            let period = (u64::from(period_us) * u64::from(TICK_HZ) / 1_000_000)
-                .min(u64::from(u32::MAX)) as u32;
-            let mut done = 0u32;
-            while done < max_updates && timer.now().wrapping_sub(t0) < period {
-                done += m.gibbs.step(
-                    &mut m.store,
-                    m.mapper.grid().cells(),
-                    CHUNK.min(max_updates - done),
-                );
-            }
-            done
-        }
+        } => sample_until(m, timer, t0, period_us, max_updates),
     }
+}
+
+/// Sampler updates until `period_us` of board time after `t0` or `max_updates`, whichever comes
+/// first; returns how many.
+fn sample_until(m: &mut Machine, timer: &Timer, t0: u32, period_us: u32, max_updates: u32) -> u32 {
+    // Ticks fit a u32 for periods up to 171 s at 25 MHz; longer ones are cut there.
+    let period =
+        (u64::from(period_us) * u64::from(TICK_HZ) / 1_000_000).min(u64::from(u32::MAX)) as u32;
+    let mut done = 0u32;
+    while done < max_updates && timer.now().wrapping_sub(t0) < period {
+        done += m.gibbs.step(
+            &mut m.store,
+            m.mapper.grid().cells(),
+            CHUNK.min(max_updates - done),
+        );
+    }
+    done
 }
 
 /// Marks the tiles a scan can have changed: the box around the pose's cell and every beam's end

@@ -306,7 +306,7 @@ fuzz_target!(|items: Vec<Item>| {
                 ogm_core::mapper::scan_box(mapper.grid().geometry(), mapper.config(), &pose, beams);
             assert!(lo.x <= hi.x && lo.y <= hi.y);
         }
-        Step::Finish | Step::Error(_) => {}
+        Step::Finish | Step::Idle { .. } | Step::Error(_) => {}
     });
     rx.finish(|_| {});
     if let Some((_, mapper, _, gibbs)) = machine.as_ref() {

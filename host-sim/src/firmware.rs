@@ -43,7 +43,7 @@ use ogm_core::{LogOdds, LogOddsGrid, Mapper, ScanBuf};
 use serde::Serialize;
 
 use crate::link::{
-    encode_run_with, DeviceEvent, HelloInfo, OwnedTile, RunInput, StreamDecoder, StreamedMap, Unit,
+    encode_run_idle, DeviceEvent, HelloInfo, OwnedTile, RunInput, StreamDecoder, StreamedMap, Unit,
     UnitKind,
 };
 use crate::metrics::Summary;
@@ -106,6 +106,11 @@ pub struct FirmwareArgs {
     /// until it has taken this many scans.
     #[arg(long)]
     pub mission_scans: Option<usize>,
+    /// After the last scan, let the robot stand still and sample for these many seconds of
+    /// board time in all (cumulative marks, e.g. `1,5,30`), scoring the map at each mark with
+    /// `--accuracy`.
+    #[arg(long, value_delimiter = ',')]
+    pub idle: Vec<f64>,
     /// Soak: send this many scans, cycling through the simulated run's scans.
     #[arg(long)]
     pub soak_scans: Option<usize>,
@@ -241,6 +246,7 @@ impl Default for FirmwareArgs {
             timeout: 300,
             moving: false,
             mission_scans: None,
+            idle: Vec::new(),
             sampler: SamplerArgs::default(),
             accuracy: false,
             host_only: false,
@@ -387,6 +393,30 @@ pub struct Accuracy {
     pub tile_visits: u64,
     /// Ray-store thinnings (firmware sizes), summed.
     pub thinnings: u32,
+    /// Max F1 (all cells) of the on-board marginals and of the log-odds map as the scans come
+    /// in (first world; at most ~200 points).
+    pub anytime: Vec<AnytimePoint>,
+}
+
+/// One point of the anytime curve.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct AnytimePoint {
+    /// Scans inserted.
+    pub scans: u32,
+    /// Max F1 of the sampler's marginals.
+    pub online: f64,
+    /// Max F1 of the log-odds map.
+    pub log_odds: f64,
+}
+
+/// What the online replay needs: the robot's input and the sampler work it reported.
+#[derive(Clone, Copy, Debug)]
+struct Online<'a> {
+    input: &'a [u8],
+    scan_updates: &'a [u32],
+    idle_updates: &'a [u32],
+    /// Cumulative idle seconds at the end of each idle period.
+    idle_marks: &'a [f64],
 }
 
 /// Buffer sizes of a replay.
@@ -522,6 +552,12 @@ impl<N: Count> Replay<N> {
         (r, ok)
     }
 
+    /// The firmware's idle period: `updates` sampler updates.
+    pub fn idle(&mut self, updates: u32) {
+        self.gibbs
+            .step(&mut self.store, self.mapper.grid().cells(), updates);
+    }
+
     /// The sampler/store report the firmware sends.
     pub fn sampler_report(&self) -> SamplerReport {
         let store = StoreReport::new(
@@ -604,6 +640,7 @@ struct Groups {
     configured: Option<RunConfig>,
     errors: usize,
     all_tiles: Vec<OwnedTile>,
+    idles: HashMap<u32, ogm_core::wire::IdleReport>,
 }
 
 #[derive(Default)]
@@ -651,9 +688,20 @@ impl Groups {
                 }
                 DeviceEvent::Error(_) => g.errors += 1,
                 DeviceEvent::Done(d) => g.done = Some(*d),
+                DeviceEvent::Idle(r) => {
+                    g.idles.insert(r.seq, *r);
+                }
             }
         }
         g
+    }
+
+    /// The sampler updates the firmware reported for `w`.
+    fn updates(&self, w: Work) -> Option<u32> {
+        match w {
+            Work::Scan(seq) => self.scans.get(&seq).map(|s| s.report.sampler_updates),
+            Work::Idle(seq) => self.idles.get(&seq).map(|r| r.sampler_updates),
+        }
     }
 }
 
@@ -691,14 +739,26 @@ enum ReplayEvent<'a, N: Count> {
     Scan(u32, &'a ScanReport, &'a Replay<N>),
     /// After the byte that completed scan `seq`: the firmware reports its statistics here.
     AfterScan(u32, &'a Counters, &'a Replay<N>),
+    /// Idle period `seq` was sampled.
+    Idle(u32, &'a Replay<N>),
+}
+
+/// Sampler work the firmware reported: after scan `seq`, or in idle period `seq`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Work {
+    /// The updates after a scan.
+    Scan(u32),
+    /// The updates of an idle period.
+    Idle(u32),
 }
 
 /// Runs the robot's input through the firmware's logic on the host: byte by byte through
-/// `LinkRx` (as the firmware does), `updates(seq)` sampler updates after each scan.
+/// `LinkRx` (as the firmware does), `updates(Work::Scan(seq))` sampler updates after each scan
+/// and `updates(Work::Idle(seq))` in each idle period.
 fn replay<N: Count>(
     input: &[u8],
     sizes: Sizes,
-    updates: impl Fn(u32) -> Option<u32>,
+    updates: impl Fn(Work) -> Option<u32>,
     mut hook: impl FnMut(ReplayEvent<'_, N>),
 ) -> anyhow::Result<(Option<Replay<N>>, Counters)> {
     let mut rx = LinkRx::new();
@@ -739,8 +799,8 @@ fn replay<N: Count>(
                     counters.errors += 1; // NoConfig
                     return;
                 };
-                let Some(n) = updates(seq) else {
-                    missing = Some(seq);
+                let Some(n) = updates(Work::Scan(seq)) else {
+                    missing = Some(Work::Scan(seq));
                     return;
                 };
                 let (report, ok) = m.scan(seq, &pose, beams, overflow, n);
@@ -751,11 +811,23 @@ fn replay<N: Count>(
                 hook(ReplayEvent::Scan(seq, &report, m));
                 after = Some(seq);
             }
+            Step::Idle { seq, .. } => {
+                let Some(m) = machine.as_mut() else {
+                    counters.errors += 1; // NoConfig
+                    return;
+                };
+                let Some(n) = updates(Work::Idle(seq)) else {
+                    missing = Some(Work::Idle(seq));
+                    return;
+                };
+                m.idle(n);
+                hook(ReplayEvent::Idle(seq, m));
+            }
             Step::Finish => finish = true,
             Step::Error(_) => counters.errors += 1,
         });
-        if let Some(seq) = missing {
-            bail!("the firmware did not report scan {seq}");
+        if let Some(w) = missing {
+            bail!("the firmware did not report {w:?}");
         }
         counters.link = rx.counters();
         if let (Some(seq), Some(m)) = (after, machine.as_ref()) {
@@ -785,7 +857,7 @@ fn compare(input: &[u8], g: &Groups, c: &mut Checker) -> anyhow::Result<()> {
     let (machine, counters) = replay::<u8>(
         input,
         sizes,
-        |seq| g.scans.get(&seq).map(|s| s.report.sampler_updates),
+        |w| g.updates(w),
         |ev| match ev {
             ReplayEvent::Scan(seq, report, m) => {
                 let Some(fwg) = g.scans.get(&seq) else {
@@ -828,6 +900,14 @@ fn compare(input: &[u8], g: &Groups, c: &mut Checker) -> anyhow::Result<()> {
                     &fwg.counters,
                     &Some(*counters),
                 );
+            }
+            ReplayEvent::Idle(seq, _) => {
+                // The replay sampled exactly the firmware's updates (`g.updates`); the map
+                // after the period is checked with the final one.
+                c.checks += 1;
+                if !g.idles.contains_key(&seq) {
+                    c.fail(format!("idle {seq}: no report from the firmware"));
+                }
             }
         },
     )?;
@@ -1250,12 +1330,7 @@ fn noise_report(input: &RunInput, corrupted: &[usize], g: &Groups) -> anyhow::Re
         }
     }
     let sizes = g.hello.as_ref().map_or(FIRMWARE_SIZES, Sizes::of);
-    let (machine, _) = replay::<u8>(
-        &surviving,
-        sizes,
-        |seq| g.scans.get(&seq).map(|s| s.report.sampler_updates),
-        |_| {},
-    )?;
+    let (machine, _) = replay::<u8>(&surviving, sizes, |w| g.updates(w), |_| {})?;
     let m = machine.context("the surviving packets carry no valid Config")?;
     let streamed = streamed_map(g)?;
     let cells = streamed.log_odds.len();
@@ -1334,6 +1409,21 @@ pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunC
     })
 }
 
+/// The idle periods (µs) between the cumulative marks `secs` (increasing, positive).
+fn idle_periods_us(secs: &[f64]) -> anyhow::Result<Vec<u32>> {
+    let mut prev = 0.0;
+    let mut out = Vec::new();
+    for &s in secs {
+        ensure!(
+            s.is_finite() && s > prev && s <= 600.0,
+            "--idle: marks must increase, from above 0 to at most 600 s (got {secs:?})"
+        );
+        out.push(((s - prev) * 1e6).round() as u32);
+        prev = s;
+    }
+    Ok(out)
+}
+
 /// Runs `host-sim firmware` (see the module docs).
 pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     let root = repo_root();
@@ -1361,7 +1451,8 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         scans = scans.iter().cycle().take(n).cloned().collect();
     }
     let config = run_config(&world, args, sim.mapper_config.max_range_mm);
-    let mut input = encode_run_with(&config, &scans, args.garbage, args.repeat_frames)?;
+    let idle_us = idle_periods_us(&args.idle)?;
+    let mut input = encode_run_idle(&config, &scans, args.garbage, args.repeat_frames, &idle_us)?;
     let corrupted = corrupt(&mut input.bytes, args.noise_ppm, args.seed);
     let mut report = FirmwareReport {
         config: Some(config),
@@ -1371,6 +1462,7 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         ..FirmwareReport::default()
     };
     let mut updates_used: Vec<u32> = Vec::new();
+    let mut idle_used: Vec<u32> = Vec::new();
     if !args.host_only {
         let elf = match &args.elf {
             Some(e) => e.clone(),
@@ -1452,16 +1544,28 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
             .iter()
             .map(|s| groups.scans[s].report.sampler_updates)
             .collect();
+        idle_used = (0..idle_us.len() as u32)
+            .map(|s| groups.idles.get(&s).map_or(0, |r| r.sampler_updates))
+            .collect();
     }
     if args.host_only {
         // No firmware to report its update counts: the fixed number per scan, if given.
         if let Some(n) = args.fixed_updates {
             updates_used = vec![n; input.scans];
+            // Idle at the same rate: `n` updates per 10 Hz scan period.
+            idle_used = idle_us
+                .iter()
+                .map(|&us| (u64::from(n) * u64::from(us) / 100_000).min(u64::from(u32::MAX)) as u32)
+                .collect();
         }
     }
     if args.accuracy {
-        let online =
-            (!updates_used.is_empty()).then_some((input.bytes.as_slice(), updates_used.as_slice()));
+        let online = (!updates_used.is_empty()).then_some(Online {
+            input: &input.bytes,
+            scan_updates: &updates_used,
+            idle_updates: &idle_used,
+            idle_marks: &args.idle,
+        });
         report.accuracy = Some(accuracy(args, &config, &world, &sim, &scans, online)?);
     }
     if let Some(out) = &args.out {
@@ -1484,7 +1588,7 @@ fn accuracy(
     world: &World,
     sim: &crate::sim::SimRun,
     scans: &[crate::explore::ScanRecord],
-    online: Option<(&[u8], &[u32])>,
+    online: Option<Online<'_>>,
 ) -> anyhow::Result<Accuracy> {
     use crate::eval::NEAR_MAPPED_CELLS;
     use crate::metrics::{mask_within, PrAccumulator};
@@ -1501,6 +1605,7 @@ fn accuracy(
         local_overflow_unbounded: 0,
         tile_visits: 0,
         thinnings: 0,
+        anytime: Vec::new(),
     };
     // The robot's sampler, offline.
     let host_cfg = SamplingConfig {
@@ -1562,16 +1667,17 @@ fn accuracy(
                 acc.local_overflow_unbounded += o.stats.local_overflow;
             }
         }
-        if let (0, Some((input, updates))) = (run, online) {
-            let get = |seq: u32| updates.get(seq as usize).copied();
+        if let (0, Some(online)) = (run, online) {
+            let get = |w: Work| match w {
+                Work::Scan(seq) => online.scan_updates.get(seq as usize).copied(),
+                Work::Idle(seq) => online.idle_updates.get(seq as usize).copied(),
+            };
             let total_rays: usize = scans.iter().map(|s| s.beams.len()).sum();
             let unbounded = Sizes {
                 rays: total_rays.max(1),
                 scans: scans.len().max(1),
                 local: total_rays.clamp(1, 1 << 16),
             };
-            let (b, _) = replay::<u8>(input, FIRMWARE_SIZES, get, |_| {})?;
-            let (u, _) = replay::<u32>(input, unbounded, get, |_| {})?;
             let (gw, ww, wh) = (usize::from(fw::WIDTH), world.width, world.height);
             let crop = |v: &[f64]| -> Vec<f64> {
                 (0..wh)
@@ -1579,9 +1685,58 @@ fn accuracy(
                     .map(|i| v[i])
                     .collect()
             };
-            if let (Some(b), Some(u)) = (b, u) {
-                score("online_firmware_sizes", &crop(&b.marginals()))?;
+            let f1 = |v: &[f64]| -> anyhow::Result<f64> {
+                let mut a = PrAccumulator::default();
+                a.add(&crop(v), &world.cells, None)?;
+                Ok(a.summary().max_f1)
+            };
+            let last = scans.len().saturating_sub(1) as u32;
+            let every = (scans.len() / 200).max(1) as u32;
+            let mut end_of_scans: Option<(Vec<f64>, Vec<f64>)> = None;
+            let mut idle_maps: Vec<Vec<f64>> = Vec::new();
+            let mut failure: Option<anyhow::Error> = None;
+            let (b, _) = replay::<u8>(online.input, FIRMWARE_SIZES, get, |ev| {
+                let r = (|| -> anyhow::Result<()> {
+                    match ev {
+                        ReplayEvent::AfterScan(seq, _, m) => {
+                            if seq % every == 0 || seq == last {
+                                let lo: Vec<f64> =
+                                    m.log_odds().iter().map(|l| l.probability()).collect();
+                                acc.anytime.push(AnytimePoint {
+                                    scans: seq + 1,
+                                    online: f1(&m.marginals())?,
+                                    log_odds: f1(&lo)?,
+                                });
+                            }
+                            if seq == last {
+                                end_of_scans = Some((
+                                    m.marginals(),
+                                    m.log_odds().iter().map(|l| l.probability()).collect(),
+                                ));
+                            }
+                        }
+                        ReplayEvent::Idle(_, m) => idle_maps.push(m.marginals()),
+                        ReplayEvent::Scan(..) => {}
+                    }
+                    Ok(())
+                })();
+                if let (Err(e), None) = (r, &failure) {
+                    failure = Some(e);
+                }
+            })?;
+            if let Some(e) = failure {
+                return Err(e);
+            }
+            let (u, _) = replay::<u32>(online.input, unbounded, get, |_| {})?;
+            if let (Some(_), Some((online_map, _))) = (b, &end_of_scans) {
+                score("online_firmware_sizes", &crop(online_map))?;
+            }
+            if let Some(u) = u {
+                // Unbounded buffers and u32 estimates, at the end of the run (idle included).
                 score("online_unbounded", &crop(&u.marginals()))?;
+            }
+            for (secs, m) in online.idle_marks.iter().zip(&idle_maps) {
+                score(&format!("online_idle_{secs}s"), &crop(m))?;
             }
         }
     }

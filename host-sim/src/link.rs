@@ -131,6 +131,18 @@ pub fn encode_run_with(
     garbage: bool,
     repeat_frames: usize,
 ) -> anyhow::Result<RunInput> {
+    encode_run_idle(config, scans, garbage, repeat_frames, &[])
+}
+
+/// [`encode_run_with`] with idle periods (`HostMsg::Idle`, µs of board time each) after the
+/// last scan, before `Finish`.
+pub fn encode_run_idle(
+    config: &RunConfig,
+    scans: &[ScanRecord],
+    garbage: bool,
+    repeat_frames: usize,
+    idle_us: &[u32],
+) -> anyhow::Result<RunInput> {
     let mut input = RunInput::default();
     input.frame(&HostMsg::Config(*config), repeat_frames);
     let mut ts = 0u16;
@@ -186,6 +198,10 @@ pub fn encode_run_with(
         );
         input.scans += 1;
         input.points += s.beams.len() as u64;
+    }
+    for (seq, &period_us) in idle_us.iter().enumerate() {
+        let seq = u32::try_from(seq)?;
+        input.frame(&HostMsg::Idle { seq, period_us }, repeat_frames);
     }
     input.frame(&HostMsg::Finish, repeat_frames);
     Ok(input)
@@ -268,6 +284,8 @@ pub enum DeviceEvent {
     Error(DeviceError),
     /// End of run.
     Done(Done),
+    /// An idle period ended.
+    Idle(wire::IdleReport),
 }
 
 impl From<DeviceMsg<'_>> for DeviceEvent {
@@ -286,6 +304,7 @@ impl From<DeviceMsg<'_>> for DeviceEvent {
             DeviceMsg::Counters(c) => DeviceEvent::Counters(c),
             DeviceMsg::Error(e) => DeviceEvent::Error(e),
             DeviceMsg::Done(d) => DeviceEvent::Done(d),
+            DeviceMsg::Idle(r) => DeviceEvent::Idle(r),
         }
     }
 }
@@ -507,7 +526,7 @@ mod tests {
                 } => got.push((seq, pose, beams.to_vec())),
                 Step::Config(c) => config = Some(c),
                 Step::Finish => finished = true,
-                Step::Error(_) => {}
+                Step::Idle { .. } | Step::Error(_) => {}
             });
         }
         assert!(finished);

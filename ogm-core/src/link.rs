@@ -272,6 +272,14 @@ pub enum Step<'s> {
     },
     /// The host has no more scans.
     Finish,
+    /// Sample for `period_us` of board time ([`HostMsg::Idle`]; a repeat of the last period's
+    /// frame is not delivered again).
+    Idle {
+        /// Idle period number.
+        seq: u32,
+        /// Board time, µs.
+        period_us: u32,
+    },
     /// A problem (already counted); processing goes on.
     Error(LinkError),
 }
@@ -287,6 +295,8 @@ pub struct LinkRx {
     outside: u32,
     lost: u32,
     seq_errors: u32,
+    /// The last idle period delivered.
+    idle: Option<u32>,
 }
 
 impl LinkRx {
@@ -300,6 +310,7 @@ impl LinkRx {
             outside: 0,
             lost: 0,
             seq_errors: 0,
+            idle: None,
         }
     }
 
@@ -334,6 +345,7 @@ impl LinkRx {
             outside,
             lost,
             seq_errors,
+            idle,
         } = self;
         demux.feed(data, |ev| match ev {
             LinkEvent::Packet(p) => {
@@ -386,6 +398,12 @@ impl LinkRx {
                 }
             },
             LinkEvent::Host(HostMsg::Config(c)) => f(Step::Config(c)),
+            LinkEvent::Host(HostMsg::Idle { seq, period_us }) => {
+                if *idle != Some(seq) {
+                    *idle = Some(seq);
+                    f(Step::Idle { seq, period_us });
+                }
+            }
             LinkEvent::Host(HostMsg::Finish) => {
                 if let Some((old, _)) = open.take() {
                     bump(seq_errors);

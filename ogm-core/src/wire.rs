@@ -318,6 +318,15 @@ pub enum HostMsg {
     },
     /// No more scans: stream the final map and stop.
     Finish,
+    /// Sample for `period_us` of board time with no scan coming (the robot stands still), then
+    /// report ([`DeviceMsg::Idle`]). `seq` numbers the idle periods so that a repeated frame is
+    /// not a second period.
+    Idle {
+        /// Idle period number.
+        seq: u32,
+        /// Board time to sample for, µs.
+        period_us: u32,
+    },
 }
 
 /// Which map a [`Tile`] carries.
@@ -628,6 +637,20 @@ pub enum DeviceMsg<'a> {
     Error(DeviceError),
     /// Final message.
     Done(Done),
+    /// An idle period ([`HostMsg::Idle`]) is over.
+    Idle(IdleReport),
+}
+
+/// What an idle period did.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct IdleReport {
+    /// The period's number.
+    pub seq: u32,
+    /// Sampler updates done.
+    pub sampler_updates: u32,
+    /// Board timer ticks they took.
+    pub sampler_ticks: u32,
 }
 
 /// Framing errors.

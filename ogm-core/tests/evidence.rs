@@ -34,8 +34,14 @@ fn setup(g: GridGeometry, cfg: SamplerConfig) -> (Sampler, Store) {
         blocks: vec![0; block_words(1, cfg.block_grid)],
     };
     let s = Gibbs::new(g, BorderPrior::default(), ForwardModel::pcsm(), cfg, buf).unwrap();
-    let st = RayStore::new(g, 1000, 0, vec![StoredScan::default(); 1], vec![StoredRay::default(); 1])
-        .unwrap();
+    let st = RayStore::new(
+        g,
+        1000,
+        0,
+        vec![StoredScan::default(); 1],
+        vec![StoredRay::default(); 1],
+    )
+    .unwrap();
     (s, st)
 }
 
@@ -173,11 +179,18 @@ fn strong_evidence_wins_over_the_prior() {
     let wrong: Vec<usize> = (0..g.len())
         .filter(|&i| inner(i) && s.occupied(i) != wall(i % 48, i / 48))
         .collect();
-    assert!(wrong.is_empty(), "{} cells disagree with the evidence: {wrong:?}", wrong.len());
+    assert!(
+        wrong.is_empty(),
+        "{} cells disagree with the evidence: {wrong:?}",
+        wrong.len()
+    );
     // And the estimates followed: every inner cell within 0.1 of its evidence.
     for i in (0..g.len()).filter(|&i| inner(i)) {
         let p = s.marginal(i).unwrap();
-        assert!((p - f32::from(u8::from(wall(i % 48, i / 48)))).abs() < 0.1, "{i}: {p}");
+        assert!(
+            (p - f32::from(u8::from(wall(i % 48, i / 48)))).abs() < 0.1,
+            "{i}: {p}"
+        );
     }
 }
 
@@ -201,7 +214,10 @@ fn raster_sweep_keeps_its_window_in_step() {
         s.step(&mut st, &map, 1000 + round * 37);
     }
     let st = s.stats();
-    assert!(st.updates > 20_000 && st.changed > 0 && st.tile_visits > 10, "{st:?}");
+    assert!(
+        st.updates > 20_000 && st.changed > 0 && st.tile_visits > 10,
+        "{st:?}"
+    );
 }
 
 #[test]
@@ -234,23 +250,45 @@ fn border_prior_caches_return_what_the_table_does() {
     let mut cached = BorderPrior::default();
     let plain = BorderPrior::default();
     // Few distinct borders, so both caches hit and get replaced.
-    let borders: Vec<u16> = (0..40).map(|_| rng.next_u32() as u16).chain([0, 0xFFFF]).collect();
+    let borders: Vec<u16> = (0..40)
+        .map(|_| rng.next_u32() as u16)
+        .chain([0, 0xFFFF])
+        .collect();
     for _ in 0..5000 {
         let b = borders[range::<usize>(&mut rng, 0, borders.len() as i64)];
         let k: usize = range(&mut rng, 1, 17);
-        let (mut x, mut y) = ([PatchCandidate::default(); 16], [PatchCandidate::default(); 16]);
+        let (mut x, mut y) = (
+            [PatchCandidate::default(); 16],
+            [PatchCandidate::default(); 16],
+        );
         let n = cached.candidates_cached(b, &mut x[..k]);
-        assert_eq!(n, plain.candidates(b, &mut y[..k]), "border {b:016b}, k {k}");
+        assert_eq!(
+            n,
+            plain.candidates(b, &mut y[..k]),
+            "border {b:016b}, k {k}"
+        );
         // The same top-k, up to which of equally likely candidates fills the last places.
         let lps = |c: &[PatchCandidate]| c.iter().map(|p| p.log_prior).collect::<Vec<_>>();
         assert_eq!(lps(&x[..n]), lps(&y[..n]), "border {b:016b}, k {k}");
         let mut all = [PatchCandidate::default(); 16];
         let m = plain.candidates(b, &mut all);
-        assert!(x[..n].iter().all(|c| all[..m].contains(c)), "border {b:016b}, k {k}");
+        assert!(
+            x[..n].iter().all(|c| all[..m].contains(c)),
+            "border {b:016b}, k {k}"
+        );
         match cached.table(b) {
             Some((configs, lps)) => {
-                assert!(configs.len() >= n && configs[..n].iter().zip(&x[..n]).all(|(c, p)| *c == p.config));
-                assert!(lps[..n].iter().zip(&x[..n]).all(|(l, p)| i32::from(*l) == p.log_prior));
+                assert!(
+                    configs.len() >= n
+                        && configs[..n]
+                            .iter()
+                            .zip(&x[..n])
+                            .all(|(c, p)| *c == p.config)
+                );
+                assert!(lps[..n]
+                    .iter()
+                    .zip(&x[..n])
+                    .all(|(l, p)| i32::from(*l) == p.log_prior));
             }
             None => assert!(!ogm_core::prior::border_seen(b)),
         }

@@ -173,7 +173,12 @@ impl PatchPrior for BorderPrior {
             }
         };
         let n = usize::from(entry.n).min(k);
-        for ((o, &c), &l) in out.iter_mut().zip(&entry.configs).zip(&entry.log_priors).take(n) {
+        for ((o, &c), &l) in out
+            .iter_mut()
+            .zip(&entry.configs)
+            .zip(&entry.log_priors)
+            .take(n)
+        {
             *o = PatchCandidate {
                 config: c,
                 log_prior: i32::from(l),

@@ -74,16 +74,6 @@ where
         budget
     }
 
-    /// Sample bit of cell (x, y) (0 outside the map).
-    #[inline]
-    fn bit_at(&self, x: i32, y: i32) -> u32 {
-        let w = i32::from(self.geometry.width());
-        if x < 0 || y < 0 || x >= w {
-            return 0;
-        }
-        u32::from(self.occupied(y as usize * w as usize + x as usize))
-    }
-
     /// Evidence bits (≠ 0, > 0) of cell (x, y) (none outside the map).
     #[inline]
     fn evidence_at(map: &[LogOdds], width: i32, x: i32, y: i32) -> (u32, u32) {
@@ -141,10 +131,16 @@ where
         if !self.raster.valid {
             return;
         }
-        // Window: column x + 2 comes in.
+        // Window: column x + 2 comes in (patch centres keep a 2-cell margin, so the column is in
+        // the map; a bit outside the sample reads 0).
+        let w = usize::from(self.geometry.width());
+        let words = self.buf.sample.as_ref();
+        let mut idx = (y - 2).max(0) as usize * w + (x + 2) as usize;
         let mut rows = self.raster.rows;
-        for (r, row) in rows.iter_mut().enumerate() {
-            *row = (*row >> 1) | (self.bit_at(x + 2, y - 2 + r as i32) << 4);
+        for row in rows.iter_mut() {
+            let bit = words.get(idx / 32).map_or(0, |v| (v >> (idx % 32)) & 1);
+            *row = (*row >> 1) | (bit << 4);
+            idx += w;
         }
         self.raster.rows = rows;
         // Evidence: column x + 1 comes in.
