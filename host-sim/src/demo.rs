@@ -59,7 +59,7 @@ pub fn run(out: &Path, seed: u64, all_samplers: bool) -> anyhow::Result<()> {
             &run.scans,
             &run.map,
             v,
-            &scfg,
+            &v.configure(&scfg),
             seed,
         )?;
         seconds.insert(v.name().to_string(), o.seconds);
@@ -75,10 +75,12 @@ pub fn run(out: &Path, seed: u64, all_samplers: bool) -> anyhow::Result<()> {
     for name in ["traditional", "gibbs_l9_border"] {
         let probs = &maps[name];
         let t = methods.get(name).map_or(0.5, |s| s.threshold_at_max_f1);
-        render::probability_png(out.join(format!("{name}_probability.png")), probs, w, h)?;
-        render::threshold_png(out.join(format!("{name}_thresholded.png")), probs, w, h, t)?;
+        // What no measurement reached is drawn unknown; the error map scores every estimate.
+        let shown = render::unknown_where_unobserved(probs, &run.observed);
+        render::probability_png(out.join(format!("{name}_probability.png")), &shown, w, h)?;
+        render::threshold_png(out.join(format!("{name}_thresholded.png")), &shown, w, h, t)?;
         render::comparison_png(out.join(format!("{name}_errors.png")), probs, &world, t)?;
-        panels.push((name.to_string(), render::probability_image(probs, w, h)?));
+        panels.push((name.to_string(), render::probability_image(&shown, w, h)?));
     }
     render::side_by_side_png(out.join("comparison.png"), &panels)?;
 

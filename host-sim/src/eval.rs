@@ -288,7 +288,7 @@ pub fn run_sim(maps: &[PathBuf], out: &Path, cfg: &EvalConfig) -> anyhow::Result
                     &run.scans,
                     &run.map,
                     v,
-                    &cfg.sampling,
+                    &v.configure(&cfg.sampling),
                     s,
                 )?;
                 *seconds.entry(v.name().into()).or_default() += o.seconds;
@@ -341,9 +341,10 @@ pub fn run_sim(maps: &[PathBuf], out: &Path, cfg: &EvalConfig) -> anyhow::Result
                 // One picture per map: ground truth, then every method's probability map.
                 let mut panels = vec![("ground truth".to_string(), render::truth_image(&world)?)];
                 for (k, probs) in &m {
+                    let shown = render::unknown_where_unobserved(probs, &run.observed);
                     panels.push((
                         k.clone(),
-                        render::probability_image(probs, world.width, world.height)?,
+                        render::probability_image(&shown, world.width, world.height)?,
                     ));
                 }
                 render::side_by_side_png(out.join(format!("{name}.png")), &panels)?;

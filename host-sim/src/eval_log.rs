@@ -91,10 +91,10 @@ pub struct LogMapArgs {
     /// Sampler burn-in sweeps.
     #[arg(long, default_value_t = 10)]
     pub burn_in: u32,
-    /// Forward-model σ in cells, for the samplers and the baselines (the paper's simulation:
-    /// 3).
-    #[arg(long, default_value_t = 3.0)]
-    pub sigma_cells: f64,
+    /// Forward-model σ in cells, for the samplers and the baselines; default: estimated from
+    /// each experiment's own data (`crate::noise`; the paper's simulation used 3).
+    #[arg(long)]
+    pub sigma_cells: Option<f64>,
     /// Initial sample: a cell starts occupied iff its online log-odds exceeds this (raw LSB,
     /// 1024 = ln 4). The default 0 starts never-observed cells free (see the module docs).
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
@@ -116,7 +116,7 @@ impl Default for LogMapArgs {
             range_cap: DEFAULT_RANGE_CAP_M,
             sweeps: 50,
             burn_in: 10,
-            sigma_cells: 3.0,
+            sigma_cells: None,
             init_threshold: 0,
             baseline_seconds: 10.0,
             seed: 1,
@@ -539,6 +539,12 @@ pub struct ExperimentReport {
     /// sweep (K proposals) of Metropolis–Hastings; per iteration of belief propagation and dual
     /// decomposition.
     pub seconds_per_map_sample: BTreeMap<String, f64>,
+    /// The range noise estimated from the experiment's data.
+    #[serde(default)]
+    pub noise: Option<crate::noise::NoiseEstimate>,
+    /// The forward model's σ (cells) the methods used.
+    #[serde(default)]
+    pub sigma_cells: f64,
     /// Methods (`methods`, `methods_near_mapped`, ...), as in `eval-sim`.
     #[serde(flatten)]
     pub report: Report,
@@ -621,9 +627,21 @@ pub struct MethodsConfig {
     pub baseline: BaselineConfig,
     /// Seed.
     pub seed: u64,
+    /// Estimate σ from each data set ([`MethodsConfig::with_sigma`]).
+    pub estimate_sigma: bool,
 }
 
 impl MethodsConfig {
+    /// These settings with the forward model's σ set to `sigma_cells`.
+    pub fn with_sigma(&self, sigma_cells: f64) -> MethodsConfig {
+        let mut c = self.clone();
+        c.sampling.sigma_cells = sigma_cells;
+        if let SensorModel::Gaussian { sigma_cells: s, .. } = &mut c.baseline.model {
+            *s = sigma_cells;
+        }
+        c
+    }
+
     /// From the command-line options.
     pub fn new(a: &LogMapArgs) -> anyhow::Result<Self> {
         ensure!(
@@ -631,22 +649,26 @@ impl MethodsConfig {
             "--baseline-seconds must be positive"
         );
         ensure!(
-            a.sigma_cells.is_finite() && a.sigma_cells > 0.0,
+            a.sigma_cells.is_none_or(|s| s.is_finite() && s > 0.0),
             "--sigma-cells must be positive"
         );
         let sampling = SamplingConfig {
             sweeps: a.sweeps,
             burn_in: a.burn_in,
             init_threshold: a.init_threshold,
-            sigma_cells: a.sigma_cells,
+            sigma_cells: a
+                .sigma_cells
+                .unwrap_or(SamplingConfig::default().sigma_cells),
             ..SamplingConfig::default()
         };
         let mut baseline = BaselineConfig {
             init_threshold: a.init_threshold,
             ..BaselineConfig::default()
         };
-        if let SensorModel::Gaussian { sigma_cells, .. } = &mut baseline.model {
-            *sigma_cells = a.sigma_cells;
+        if let (SensorModel::Gaussian { sigma_cells, .. }, Some(s)) =
+            (&mut baseline.model, a.sigma_cells)
+        {
+            *sigma_cells = s;
         }
         baseline.mh.sweeps = a.sweeps;
         baseline.mh.burn_in_sweeps = a.burn_in;
@@ -657,6 +679,7 @@ impl MethodsConfig {
             sampling,
             baseline,
             seed: a.seed,
+            estimate_sigma: a.sigma_cells.is_none(),
         })
     }
 }
@@ -687,7 +710,15 @@ pub fn run_log_method(
     let g = setup.geometry;
     Ok(match m {
         LogMethod::Sampler(v) => {
-            let o = run_sampler(g, &setup.mapper, scans, map, v, &cfg.sampling, cfg.seed)?;
+            let o = run_sampler(
+                g,
+                &setup.mapper,
+                scans,
+                map,
+                v,
+                &v.configure(&cfg.sampling),
+                cfg.seed,
+            )?;
             MethodOutput {
                 probs: o.marginals,
                 seconds: o.seconds,
@@ -779,6 +810,22 @@ fn eval_one(
         seconds.insert("traditional".to_string(), t.seconds);
         let mut iterations = BTreeMap::new();
         let mut graph = None;
+        // The sensor's noise, from this experiment's own data.
+        let noise = crate::noise::estimate(&g, &setup.mapper, &scans, &t.map);
+        let cfg = &match (cfg.estimate_sigma, noise) {
+            (true, Some(n)) => cfg.with_sigma(n.sigma_cells.max(0.25)),
+            _ => cfg.clone(),
+        };
+        if let Some(n) = noise {
+            eprintln!(
+                "{} experiment {id}: estimated range noise σ = {:.2} cells, {:.1} % outliers ({} hits){}",
+                setup.name,
+                n.sigma_cells,
+                100.0 * n.outlier_rate,
+                n.hits,
+                if cfg.estimate_sigma { "" } else { " (not used: --sigma-cells)" }
+            );
+        }
         for &m in methods {
             eprintln!("{} experiment {id}: {}", setup.name, m.name());
             let o = run_log_method(m, &setup, &scans, &t.map, cfg, &mut graph)?;
@@ -798,7 +845,15 @@ fn eval_one(
             n.add(probs, &world.cells, Some(&near))?;
             near_sum.insert(name.clone(), n.summary());
         }
-        write_experiment_images(out, id, &world, &maps, &near_sum, args.export_ros)?;
+        write_experiment_images(
+            out,
+            id,
+            &world,
+            &maps,
+            &t.observed,
+            &near_sum,
+            args.export_ros,
+        )?;
         let report = Report {
             methods: all,
             methods_near_mapped: near_sum,
@@ -830,6 +885,8 @@ fn eval_one(
             beam_step: e.beam_step,
             counts: counts(&scans, &t.observed, &near),
             seconds_per_map_sample: per_sample,
+            noise,
+            sigma_cells: cfg.sampling.sigma_cells,
             report,
         });
     }
@@ -858,6 +915,7 @@ fn write_experiment_images(
     id: u8,
     world: &World,
     maps: &BTreeMap<String, Vec<f64>>,
+    observed: &[bool],
     near: &BTreeMap<String, Summary>,
     export_ros: bool,
 ) -> anyhow::Result<()> {
@@ -868,8 +926,10 @@ fn write_experiment_images(
     names.sort_by_key(|n| (n.as_str() != "traditional", n.as_str()));
     for name in names {
         let probs = &maps[name];
-        panels.push((name.clone(), render::probability_image(probs, w, h)?));
-        render::probability_png(out.join(format!("exp{id}_{name}.png")), probs, w, h)?;
+        // What this experiment's measurements never reached is drawn and exported unknown.
+        let shown = render::unknown_where_unobserved(probs, observed);
+        panels.push((name.clone(), render::probability_image(&shown, w, h)?));
+        render::probability_png(out.join(format!("exp{id}_{name}.png")), &shown, w, h)?;
         let t = near.get(name).map_or(0.5, |s| s.threshold_at_max_f1);
         render::comparison_png(
             out.join(format!("exp{id}_{name}_errors.png")),
@@ -879,7 +939,7 @@ fn write_experiment_images(
         )?;
         if export_ros {
             let trinary = crate::world::probabilities_to_world(
-                probs,
+                &shown,
                 w,
                 h,
                 world.resolution_m,

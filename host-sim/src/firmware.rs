@@ -1572,6 +1572,22 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         std::fs::create_dir_all(out)?;
         let json = serde_json::to_string_pretty(&report)?;
         std::fs::write(out.join("report.json"), json + "\n")?;
+        if let Some(a) = report.accuracy.as_ref().filter(|a| !a.anytime.is_empty()) {
+            let pts = |f: fn(&AnytimePoint) -> f64| -> Vec<(f64, f64)> {
+                a.anytime
+                    .iter()
+                    .map(|p| (f64::from(p.scans), f(p)))
+                    .collect()
+            };
+            crate::render::anytime_svg(
+                out.join("anytime.svg"),
+                &[
+                    ("online marginals (firmware)", pts(|p| p.online)),
+                    ("log-odds map", pts(|p| p.log_odds)),
+                ],
+                &format!("Online map quality, seed {}", args.seed),
+            )?;
+        }
     }
     Ok(report)
 }

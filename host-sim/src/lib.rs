@@ -15,6 +15,7 @@ pub mod lidar;
 pub mod link;
 pub mod map_export;
 pub mod metrics;
+pub mod noise;
 pub mod prior;
 pub mod progress;
 pub mod render;

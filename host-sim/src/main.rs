@@ -49,7 +49,10 @@ enum Commands {
         seed: u64,
         /// Methods besides traditional OGM: gibbs_l1, gibbs_l9, gibbs_l9_border and the baselines
         /// mh, mh_heatmap, bp_sum, bp_max, dd (comma-separated), or "none".
-        #[arg(long, default_value = "gibbs_l1,gibbs_l9,gibbs_l9_border")]
+        #[arg(
+            long,
+            default_value = "gibbs_l1,gibbs_l1_border,gibbs_l9,gibbs_l9_border,gibbs_l9_border_rays,gibbs_l9_border_hybrid"
+        )]
         methods: String,
         /// Sampler sweeps (map samples) counted after burn-in.
         #[arg(long, default_value_t = 100)]
@@ -132,7 +135,7 @@ fn eval_sim(
             Some(v) => variants.push(*v),
             None => match host_sim::baselines::Method::from_name(m) {
                 Some(b) => baselines.push(b),
-                None => anyhow::bail!("--methods: unknown method `{m}` (expected gibbs_l1, gibbs_l9, gibbs_l9_border, mh, mh_heatmap, bp_sum, bp_max, dd or none)"),
+                None => anyhow::bail!("--methods: unknown method `{m}` (expected {}, mh, mh_heatmap, bp_sum, bp_max, dd or none)", Variant::ALL.map(|v| v.name()).join(", ")),
             },
         }
     }

@@ -215,7 +215,9 @@ fn world_from_log(log: &Path, a: &ExportArgs) -> anyhow::Result<World> {
             bail!("--method: give one method");
         };
         let cfg = MethodsConfig::new(&a.map)?;
-        run_log_method(*m, &setup, &scans, &t.map, &cfg, &mut None)?.probs
+        let probs = run_log_method(*m, &setup, &scans, &t.map, &cfg, &mut None)?.probs;
+        // What no measurement reached stays unknown in the exported map.
+        crate::render::unknown_where_unobserved(&probs, &t.observed)
     };
     Ok(probabilities_to_world(
         &probs,

@@ -16,8 +16,20 @@ use crate::world::{Truth, World};
 
 /// Gray level of `Truth::Unknown` cells in [`truth_image`] and [`comparison_image`].
 pub const UNKNOWN_GRAY: u8 = 205;
-/// Gray level for NaN probabilities in [`probability_image`].
-pub const NAN_GRAY: u8 = 128;
+/// Gray level for unknown cells (NaN probabilities) in [`probability_image`] and
+/// [`threshold_image`]: the same as [`UNKNOWN_GRAY`], ROS map_server's unknown.
+pub const NAN_GRAY: u8 = UNKNOWN_GRAY;
+
+/// `probs` with every cell that no measurement reached (`observed` false) set to NaN, so that
+/// the images and map files show it unknown (grey, ROS −1) whatever a method estimated there —
+/// never free by default. Metrics use the probabilities as they are.
+pub fn unknown_where_unobserved(probs: &[f64], observed: &[bool]) -> Vec<f64> {
+    probs
+        .iter()
+        .zip(observed.iter().chain(std::iter::repeat(&false)))
+        .map(|(&p, &o)| if o { p } else { f64::NAN })
+        .collect()
+}
 /// Gap between the maps of [`side_by_side_png`], in pixels.
 pub const SIDE_BY_SIDE_GAP_PX: u32 = 4;
 /// Gray level of the gap between the maps of [`side_by_side_png`].
@@ -90,12 +102,16 @@ pub fn truth_image(world: &World) -> Result<GrayImage> {
     ))
 }
 
-/// A thresholded map: black where `p ≥ t` (predicted occupied; NaN counts as 0.5), else white.
+/// A thresholded map: black where `p ≥ t` (predicted occupied), else white; NaN (unknown)
+/// [`NAN_GRAY`].
 pub fn threshold_image(probs: &[f64], width: usize, height: usize, t: f64) -> Result<GrayImage> {
     check_len("probs", probs.len(), width, height)?;
     Ok(GrayImage::from_fn(width as u32, height as u32, |x, r| {
-        let occ = predicted_occupied(probs[grid_index(x, r, width, height)], t);
-        Luma([if occ { 0 } else { 255 }])
+        let p = probs[grid_index(x, r, width, height)];
+        if p.is_nan() {
+            return Luma([NAN_GRAY]);
+        }
+        Luma([if predicted_occupied(p, t) { 0 } else { 255 }])
     }))
 }
 
@@ -230,6 +246,27 @@ fn line_plot_svg(
     series: &[(&str, Vec<(f64, f64)>)],
     legend_at: SeriesLabelPosition,
 ) -> Result<String> {
+    line_plot_svg_in(
+        title,
+        x_label,
+        y_label,
+        (0.0, 1.0),
+        (0.0, 1.0),
+        series,
+        legend_at,
+    )
+}
+
+/// [`line_plot_svg`] over the given axis ranges.
+fn line_plot_svg_in(
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    (x0, x1): (f64, f64),
+    (y0, y1): (f64, f64),
+    series: &[(&str, Vec<(f64, f64)>)],
+    legend_at: SeriesLabelPosition,
+) -> Result<String> {
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, PLOT_SIZE).into_drawing_area();
@@ -239,7 +276,7 @@ fn line_plot_svg(
             .margin(20)
             .x_label_area_size(55)
             .y_label_area_size(70)
-            .build_cartesian_2d(0.0f64..1.0f64, 0.0f64..1.0f64)?;
+            .build_cartesian_2d(x0..x1, y0..y1)?;
         chart
             .configure_mesh()
             .x_desc(x_label)
@@ -304,6 +341,38 @@ pub fn pr_curve_svg<S: AsRef<str>>(
         "Precision",
         &series,
         SeriesLabelPosition::LowerLeft,
+    )
+    .with_context(|| format!("plotting {}", path.display()))?;
+    write_svg(path, &svg)
+}
+
+/// Max F1 against the number of scans inserted (the anytime curve of an online run), one line
+/// per named series; the y axis spans the data (rounded out to tenths).
+pub fn anytime_svg<S: AsRef<str>>(
+    path: impl AsRef<Path>,
+    series: &[(S, Vec<(f64, f64)>)],
+    title: &str,
+) -> Result<()> {
+    let path = path.as_ref();
+    let all = series.iter().flat_map(|(_, p)| p.iter());
+    let (mut xmax, mut ymin) = (1.0f64, 1.0f64);
+    for &(x, y) in all {
+        xmax = xmax.max(x);
+        ymin = ymin.min(y);
+    }
+    let ymin = ((ymin * 10.0).floor() / 10.0).clamp(0.0, 0.9);
+    let s: Vec<(&str, Vec<(f64, f64)>)> = series
+        .iter()
+        .map(|(n, p)| (n.as_ref(), p.clone()))
+        .collect();
+    let svg = line_plot_svg_in(
+        title,
+        "Scans inserted",
+        "Max F1 (all cells)",
+        (0.0, xmax),
+        (ymin, 1.0),
+        &s,
+        SeriesLabelPosition::LowerRight,
     )
     .with_context(|| format!("plotting {}", path.display()))?;
     write_svg(path, &svg)

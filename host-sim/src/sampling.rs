@@ -1,5 +1,9 @@
-//! Runs `ogm_core::gibbs` on a recorded dataset: the three variants of the paper's Table II
-//! (`gibbs_l1`, `gibbs_l9`, `gibbs_l9_border`), with host-sized (or firmware-sized) buffers.
+//! Runs `ogm_core::gibbs` on a recorded dataset, with host-sized (or firmware-sized) buffers:
+//! the paper's Table I/II variants and the robot's own sampler. `gibbs_l9_border` is always the
+//! firmware's default mode (`RunConfig::robot`: per-cell evidence, the evidence's configuration
+//! as a candidate, averaged draws); `gibbs_l9_border_rays` is the paper's (the forward model
+//! over every stored ray, sample counts), `gibbs_l9_border_hybrid` the robot's sampler with
+//! the rays still in the store plus the evidence of what it dropped.
 
 use std::time::Instant;
 
@@ -7,7 +11,7 @@ use anyhow::anyhow;
 use ogm_core::forward_model::ForwardModel;
 use ogm_core::gibbs::{
     block_words, BorderPrior, Buffers, ConstantCellPrior, DataTerm, Estimator, Gibbs, LocalRay,
-    PatchPrior, SamplerConfig, SamplerStats, UnconditionedPrior,
+    NeighbourPrior, PatchPrior, SamplerConfig, SamplerStats, UnconditionedPrior,
 };
 use ogm_core::ray_store::{RayStore, StoreStats, StoredRay, StoredScan};
 use ogm_core::{GridGeometry, LogOdds, MapperConfig};
@@ -18,32 +22,85 @@ use crate::explore::ScanRecord;
 /// Which sampler.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub enum Variant {
-    /// L = 1 with the constant data-driven prior p(m_k).
+    /// L = 1 with the constant data-driven prior p(m_k) (rays).
     L1,
-    /// L = 9 with the unconditioned data-driven prior.
+    /// L = 1 conditioned on the 8 neighbours (rays; Table I's "L = 1, data-driven prior with
+    /// border").
+    L1Border,
+    /// L = 9 with the unconditioned data-driven prior (rays).
     L9,
-    /// L = 9 conditioned on the 16-cell border (the product's default).
+    /// L = 9 conditioned on the 16-cell border: the robot's sampler (the firmware's default).
     L9Border,
+    /// L = 9 + border, the paper's sampler: rays, sample counts.
+    L9BorderRays,
+    /// The robot's sampler with the hybrid data term (stored rays + evidence of dropped ones).
+    L9BorderHybrid,
 }
 
 impl Variant {
-    /// All variants, in the paper's column order.
-    pub const ALL: [Variant; 3] = [Variant::L1, Variant::L9, Variant::L9Border];
+    /// The paper's Table II columns, then the robot's sampler and its other data terms.
+    pub const ALL: [Variant; 6] = [
+        Variant::L1,
+        Variant::L1Border,
+        Variant::L9,
+        Variant::L9Border,
+        Variant::L9BorderRays,
+        Variant::L9BorderHybrid,
+    ];
 
     /// The method name in reports.
     pub fn name(self) -> &'static str {
         match self {
             Variant::L1 => "gibbs_l1",
+            Variant::L1Border => "gibbs_l1_border",
             Variant::L9 => "gibbs_l9",
             Variant::L9Border => "gibbs_l9_border",
+            Variant::L9BorderRays => "gibbs_l9_border_rays",
+            Variant::L9BorderHybrid => "gibbs_l9_border_hybrid",
         }
     }
 
     /// Cells per patch.
     pub fn cells(self) -> u32 {
         match self {
-            Variant::L1 => 1,
+            Variant::L1 | Variant::L1Border => 1,
             _ => 9,
+        }
+    }
+
+    /// `cfg` with this variant's data term and estimator: the robot's (`RunConfig::robot`,
+    /// free evidence scaled to `cfg.sigma_cells`) for [`Variant::L9Border`] and
+    /// [`Variant::L9BorderHybrid`], the paper's (rays, sample counts) for the others.
+    pub fn configure(self, cfg: &SamplingConfig) -> SamplingConfig {
+        match self {
+            Variant::L9Border | Variant::L9BorderHybrid => {
+                let robot = ogm_core::wire::RunConfig::robot(
+                    (0, 0),
+                    1,
+                    0,
+                    ogm_core::wire::Budget::Fixed { updates: 0 },
+                );
+                SamplingConfig {
+                    data: if self == Variant::L9Border {
+                        DataTerm::Evidence
+                    } else {
+                        DataTerm::Hybrid
+                    },
+                    evidence_gain_q8: robot.evidence_gain_q8,
+                    evidence_free_q8: ogm_core::gibbs::free_evidence_q8(cfg.sigma_cells),
+                    data_candidate: robot.data_candidate,
+                    estimator: robot.estimator,
+                    hot_share: robot.hot_share,
+                    ..*cfg
+                }
+            }
+            _ => SamplingConfig {
+                data: DataTerm::Rays,
+                data_candidate: false,
+                estimator: Estimator::Counts,
+                hot_share: 0,
+                ..*cfg
+            },
         }
     }
 }
@@ -221,8 +278,9 @@ impl Prepared {
                     ConstantCellPrior::new(p).map_err(|e| anyhow!("cell prior {p}: {e}"))?;
                 session(geometry, mapper, scans, map, prior, cfg, seed)?
             }
+            Variant::L1Border => session(geometry, mapper, scans, map, NeighbourPrior, cfg, seed)?,
             Variant::L9 => session(geometry, mapper, scans, map, UnconditionedPrior, cfg, seed)?,
-            Variant::L9Border => session(
+            Variant::L9Border | Variant::L9BorderRays | Variant::L9BorderHybrid => session(
                 geometry,
                 mapper,
                 scans,

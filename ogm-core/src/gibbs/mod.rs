@@ -60,7 +60,7 @@ use evidence::patch_evidence;
 pub use evidence::{free_evidence_q8, DataTerm, MAX_GAIN_Q8};
 pub use local::{block_words, LocalRay, MAX_BLOCK_GRID};
 use local::{for_each_ray, set_bit, BlockGrid};
-pub use priors::{BorderPrior, ConstantCellPrior, UnconditionedPrior};
+pub use priors::{BorderPrior, ConstantCellPrior, NeighbourPrior, UnconditionedPrior};
 use schedule::HotTiles;
 pub use segment::Segment;
 pub use segment::MAX_STEPS;

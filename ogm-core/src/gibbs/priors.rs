@@ -58,6 +58,39 @@ impl PatchPrior for ConstantCellPrior {
     }
 }
 
+/// L = 1 with the data-driven prior conditioned on the 8 neighbours (the paper's Table I, "L = 1,
+/// data-driven prior with border"): [`crate::prior::cell_prior`], which falls back to the
+/// constant p(m_k) for neighbourhoods the corpus never showed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct NeighbourPrior;
+
+impl PatchPrior for NeighbourPrior {
+    fn size(&self) -> u8 {
+        1
+    }
+    fn margin(&self) -> u8 {
+        1
+    }
+    fn candidates(&self, border: u16, out: &mut [PatchCandidate]) -> usize {
+        let p = crate::prior::cell_prior(border as u8);
+        let c = [
+            PatchCandidate {
+                config: 0,
+                log_prior: i32::from(p.log_p_free),
+            },
+            PatchCandidate {
+                config: 1,
+                log_prior: i32::from(p.log_p_occupied),
+            },
+        ];
+        let n = out.len().min(2);
+        for (o, c) in out.iter_mut().zip(c) {
+            *o = c;
+        }
+        n
+    }
+}
+
 /// The data-driven L = 9 prior conditioned on the 16-cell border (the paper's "MCMC + border",
 /// the default): [`crate::prior::candidates_into`], with its documented back-off for unseen
 /// borders (nearby borders, then the unconditioned prior).

@@ -1,0 +1,49 @@
+//! The product's promise, as a behaviour test: the map the firmware's sampler keeps online (in
+//! QEMU, under the default time budget of 6.4 ms of board time per scan) beats the log-odds map
+//! it is built from. Max F1 is deterministic under `-icount` (the firmware decides how many
+//! sampler updates fit by the emulated clock, which counts instructions), so fixed margins can
+//! be asserted; this is not a timing test.
+//!
+//! Seed 1: 34 scans of the generated 12.8 m building, then half a second of board time standing
+//! still. Figures at the time of writing (`host-sim firmware --seed 1 --accuracy --idle 0.5`):
+//! log-odds 0.720; online after the last scan 0.806, after 0.5 s idle 0.84.
+
+use host_sim::firmware::{print_report, run, FirmwareArgs};
+
+#[test]
+fn online_marginals_beat_the_log_odds_map() {
+    if !ogm_tests::firmware_available("online_marginals_beat_the_log_odds_map") {
+        return;
+    }
+    let r = run(&FirmwareArgs {
+        seed: 1,
+        accuracy: true,
+        idle: vec![0.5],
+        timeout: 240,
+        ..FirmwareArgs::default()
+    })
+    .expect("host-sim firmware run");
+    print_report(&r);
+    assert!(r.identical(), "{}", r.mismatches.join("\n"));
+    let a = r.accuracy.expect("accuracy");
+    let f1 = |m: &str| a.methods.get(m).map(|s| s.max_f1).expect(m);
+    let (trad, online, idle) = (
+        f1("traditional"),
+        f1("online_firmware_sizes"),
+        f1("online_idle_0.5s"),
+    );
+    eprintln!("log-odds {trad:.4}, online {online:.4}, after 0.5 s idle {idle:.4}");
+    assert!(online >= trad + 0.06, "online {online} vs log-odds {trad}");
+    assert!(
+        idle >= trad + 0.10,
+        "after idling {idle} vs log-odds {trad}"
+    );
+    // The anytime curve: the sampler is ahead of the log-odds map from early on.
+    let late: Vec<_> = a.anytime.iter().filter(|p| p.scans >= 10).collect();
+    assert!(!late.is_empty());
+    assert!(
+        late.iter().all(|p| p.online > p.log_odds),
+        "{:?}",
+        a.anytime
+    );
+}
