@@ -98,7 +98,7 @@ pub struct FirmwareArgs {
     /// on a noisy link a frame is then lost only if every copy is damaged).
     #[arg(long, default_value_t = 1)]
     pub repeat_frames: usize,
-    /// The robot scans while it drives, at the LD06's rate (10 Hz, 450 points per turn, 0.4 m/s),
+    /// The robot scans while it drives, at the LD06's rate (10 Hz, 456 points per turn, 0.4 m/s),
     /// not only when stopped.
     #[arg(long)]
     pub moving: bool,
@@ -1362,7 +1362,8 @@ pub fn sim_config(args: &FirmwareArgs) -> SimConfig {
         if args.mission_scans.is_none() {
             cfg.explore.max_stops = SimConfig::default().explore.max_stops * 25;
         }
-        cfg.lidar.beams = 450;
+        // 4 500 points/s at 10 Hz, rounded up to whole 12-point LD06 packets.
+        cfg.lidar.beams = 456;
     }
     cfg
 }
