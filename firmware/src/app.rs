@@ -21,8 +21,7 @@ use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
 use ogm_core::wire::firmware_sizes as sz;
 use ogm_core::wire::{
     self, Budget, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello, IdleReport, Layer,
-    LinkCounters,
-    RunConfig, SamplerReport, ScanReport, StoreReport, Tile,
+    LinkCounters, RunConfig, SamplerReport, ScanReport, StoreReport, Tile,
 };
 use ogm_core::{Beam, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose};
 
@@ -31,7 +30,8 @@ use crate::memory::{self, MapBuffers, BLOCK_WORDS, CELLS, MARK_WORDS, SAMPLE_WOR
 use crate::selftest;
 
 type MapperT = Mapper<&'static mut [LogOdds; CELLS], &'static mut [u32; MARK_WORDS]>;
-type StoreT = RayStore<&'static mut [StoredScan; memory::SCANS], &'static mut [StoredRay; memory::RAYS]>;
+type StoreT =
+    RayStore<&'static mut [StoredScan; memory::SCANS], &'static mut [StoredRay; memory::RAYS]>;
 type GibbsT = Gibbs<
     BorderPrior,
     &'static mut [u32; SAMPLE_WORDS],

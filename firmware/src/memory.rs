@@ -23,7 +23,11 @@ pub const RAYS: usize = if cfg!(feature = "rays") { sz::RAYS } else { 1 };
 /// See [`RAYS`].
 pub const SCANS: usize = if cfg!(feature = "rays") { sz::SCANS } else { 1 };
 /// See [`RAYS`].
-pub const LOCAL_RAYS: usize = if cfg!(feature = "rays") { sz::LOCAL_RAYS } else { 1 };
+pub const LOCAL_RAYS: usize = if cfg!(feature = "rays") {
+    sz::LOCAL_RAYS
+} else {
+    1
+};
 
 /// The log-odds map: 256 × 256 × 2 B = 128 KiB.
 static GRID: StaticBuf<[LogOdds; CELLS]> = StaticBuf::new([LogOdds::ZERO; CELLS]);
