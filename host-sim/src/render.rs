@@ -452,6 +452,21 @@ mod tests {
     }
 
     #[test]
+    fn unobserved_cells_are_drawn_unknown() {
+        let probs = [0.1, 0.9, 0.0];
+        let shown = unknown_where_unobserved(&probs, &[true, false]);
+        assert_eq!(shown[0], 0.1);
+        assert!(shown[1].is_nan() && shown[2].is_nan());
+        let img = probability_image(&shown, 3, 1).unwrap();
+        assert_eq!(img.get_pixel(1, 0)[0], UNKNOWN_GRAY);
+        let th = threshold_image(&shown, 3, 1, 0.5).unwrap();
+        assert_eq!(
+            (th.get_pixel(0, 0)[0], th.get_pixel(1, 0)[0]),
+            (255, UNKNOWN_GRAY)
+        );
+    }
+
+    #[test]
     fn truth_threshold_and_comparison_pngs() {
         let dir = tempfile::tempdir().unwrap();
         let world = world_3x2();
@@ -465,14 +480,15 @@ mod tests {
         assert_eq!(bottom, [255, 0, UNKNOWN_GRAY]);
 
         // Bottom: 0.9 (Free → FP), 0.5 (Occupied, t = 0.5 → TP), 0.7 (Unknown);
-        // top: 0.1 (Occupied → FN), 0.2 (Free → TN), NaN (Free, 0.5 ≥ 0.5 → FP).
+        // top: 0.1 (Occupied → FN), 0.2 (Free → TN), NaN (Free, 0.5 ≥ 0.5 → FP; drawn unknown
+        // in the thresholded map).
         let probs = [0.9, 0.5, 0.7, 0.1, 0.2, f64::NAN];
         let th_path = dir.path().join("th.png");
         threshold_png(&th_path, &probs, 3, 2, 0.5).unwrap();
         let th = load_gray(&th_path);
         let top: Vec<u8> = (0..3).map(|x| th.get_pixel(x, 0)[0]).collect();
         let bottom: Vec<u8> = (0..3).map(|x| th.get_pixel(x, 1)[0]).collect();
-        assert_eq!(top, [255, 255, 0]);
+        assert_eq!(top, [255, 255, NAN_GRAY]);
         assert_eq!(bottom, [0, 0, 0]);
 
         let cmp_path = dir.path().join("cmp.png");
