@@ -11,7 +11,7 @@
 
 use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
-use ogm_core::gibbs::{block_words, BorderPrior, Buffers, Gibbs, LocalRay};
+use ogm_core::gibbs::{block_words, BorderPrior, Buffers, DataTerm, Estimator, Gibbs, LocalRay};
 use ogm_core::ld06::{Packet, Point, POINTS};
 use ogm_core::link::{LinkRx, Step};
 use ogm_core::mapper::marks_len;
@@ -41,6 +41,14 @@ enum Item {
         sampler_tile_shift: u8,
         visit_sweeps: u8,
         updates: u8,
+        data: u8,
+        evidence_gain_q8: u16,
+        evidence_free_q8: u16,
+        data_candidate: bool,
+        shift: u8,
+        reset_on_change: bool,
+        rao_blackwell: bool,
+        hot_share: u8,
     },
     PaperConfig {
         origin_x_mm: i16,
@@ -153,6 +161,14 @@ fuzz_target!(|items: Vec<Item>| {
                 sampler_tile_shift,
                 visit_sweeps,
                 updates,
+                data,
+                evidence_gain_q8,
+                evidence_free_q8,
+                data_candidate,
+                shift,
+                reset_on_change,
+                rao_blackwell,
+                hot_share,
             } => frame(
                 &mut bytes,
                 &HostMsg::Config(RunConfig {
@@ -174,6 +190,24 @@ fuzz_target!(|items: Vec<Item>| {
                     },
                     tiles_per_scan: 8,
                     count_tiles_per_scan: 8,
+                    data: match data % 3 {
+                        0 => DataTerm::Rays,
+                        1 => DataTerm::Evidence,
+                        _ => DataTerm::Hybrid,
+                    },
+                    evidence_gain_q8,
+                    evidence_free_q8,
+                    data_candidate,
+                    estimator: if shift == 0 {
+                        Estimator::Counts
+                    } else {
+                        Estimator::Average {
+                            shift,
+                            reset_on_change,
+                            rao_blackwell,
+                        }
+                    },
+                    hot_share,
                 }),
             ),
             Item::PaperConfig {
