@@ -48,7 +48,8 @@ pub fn run(out: &Path, seed: u64, all_samplers: bool) -> anyhow::Result<()> {
     let variants: &[Variant] = if all_samplers {
         &Variant::ALL
     } else {
-        &[Variant::L9Border]
+        // The robot's sampler and the paper's, side by side.
+        &[Variant::L9Border, Variant::L9BorderRays]
     };
     let bar = progress::bar(variants.len() as u64, "Gibbs samplers");
     for &v in variants {
@@ -72,7 +73,7 @@ pub fn run(out: &Path, seed: u64, all_samplers: bool) -> anyhow::Result<()> {
     let (w, h) = (world.width, world.height);
     render::truth_png(out.join("ground_truth.png"), &world)?;
     let mut panels = vec![("ground truth".to_string(), render::truth_image(&world)?)];
-    for name in ["traditional", "gibbs_l9_border"] {
+    for name in ["traditional", "gibbs_l9_border", "gibbs_l9_border_rays"] {
         let probs = &maps[name];
         let t = methods.get(name).map_or(0.5, |s| s.threshold_at_max_f1);
         // What no measurement reached is drawn unknown; the error map scores every estimate.
@@ -106,7 +107,7 @@ pub fn run(out: &Path, seed: u64, all_samplers: bool) -> anyhow::Result<()> {
     report.write(&out.join("report.json"))?;
     println!("\n{}", report.table());
     println!(
-        "ground truth | traditional | border sampler: {}",
+        "ground truth | traditional | robot's sampler | paper's sampler: {}",
         out.join("comparison.png").display()
     );
     println!("wrote {}", out.display());

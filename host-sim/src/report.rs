@@ -61,7 +61,7 @@ impl Report {
     pub fn table(&self) -> String {
         let mut s = String::new();
         s.push_str(&format!(
-            "{:<18} {:>8} {:>9} {:>9} {:>9} {:>9} | {:>8}\n",
+            "{:<22} {:>8} {:>9} {:>9} {:>9} {:>9} | {:>8}\n",
             "method", "max F1", "max prec", "thr@F1", "prec@F1", "rec@F1", "F1 near"
         ));
         for (name, m) in &self.methods {
@@ -71,7 +71,7 @@ impl Report {
                 .map(|n| n.max_f1)
                 .unwrap_or(f64::NAN);
             s.push_str(&format!(
-                "{:<18} {:>8.4} {:>9.4} {:>9.3} {:>9.4} {:>9.4} | {:>8.4}\n",
+                "{:<22} {:>8.4} {:>9.4} {:>9.3} {:>9.4} {:>9.4} | {:>8.4}\n",
                 name,
                 m.max_f1,
                 m.max_precision,
