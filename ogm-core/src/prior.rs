@@ -48,7 +48,8 @@
 //! # Lookup cost
 //! A border is found by its high byte in a 257-entry bucket directory and a binary search of
 //! its low byte among the seen borders of that bucket (a handful of byte compares in flash),
-//! then one offset pair gives its candidate slice. No RAM beyond the stack is used.
+//! then one offset pair gives its candidate slice. A 2 KiB bit filter in front of it answers most
+//! lookups of borders that are not stored with one load. No RAM beyond the stack is used.
 
 use crate::fixed::{LogOdds, LSB_NATS};
 use crate::patch::{config_from, CONFIG_MASK};
@@ -195,8 +196,44 @@ impl Iterator for CandidateIter {
 
 impl ExactSizeIterator for CandidateIter {}
 
+/// Bits of [`STORED`], a one-hash filter over the stored borders.
+const FILTER_BITS: u32 = 14;
+
+/// The filter bit of `border` (Fibonacci hashing: the top bits of `border × 2^32/φ`).
+#[inline]
+const fn filter_bit(border: u16) -> usize {
+    ((border as u32).wrapping_mul(0x9E37_79B9) >> (32 - FILTER_BITS)) as usize
+}
+
+/// Bit [`filter_bit`]`(b)` is set for every stored border `b` (2 KiB of flash, built at compile
+/// time from the table): a border whose bit is clear is not stored, known after one load. Most
+/// lookups of the back-off (sixteen neighbours of a border the table lacks) are of such borders
+/// (with 1 055 stored borders, 6 % of the bits are set).
+static STORED: [u32; 1 << (FILTER_BITS - 5)] = build_filter();
+
+// Const-evaluated: an out-of-range index fails compilation, not a run.
+#[allow(clippy::indexing_slicing)]
+const fn build_filter() -> [u32; 1 << (FILTER_BITS - 5)] {
+    let mut f = [0u32; 1 << (FILTER_BITS - 5)];
+    let mut hi = 0;
+    while hi < 256 {
+        let mut j = table::BORDER_BUCKET[hi] as usize;
+        while j < table::BORDER_BUCKET[hi + 1] as usize {
+            let b = filter_bit(((hi as u16) << 8) | table::BORDER_LOW[j] as u16);
+            f[b / 32] |= 1 << (b % 32);
+            j += 1;
+        }
+        hi += 1;
+    }
+    f
+}
+
 /// Index of `border` among the stored borders, if it was kept.
 fn border_index(border: u16) -> Option<usize> {
+    let b = filter_bit(border);
+    if STORED.get(b / 32).copied().unwrap_or(0) >> (b % 32) & 1 == 0 {
+        return None;
+    }
     let hi = usize::from(border >> 8);
     let start = usize::from(*table::BORDER_BUCKET.get(hi)?);
     let end = usize::from(*table::BORDER_BUCKET.get(hi + 1)?);
@@ -276,30 +313,51 @@ pub fn candidates_into(border: u16, out: &mut [Candidate]) -> (usize, PriorSourc
         let n = c.iter().zip(out.iter_mut()).map(|(c, o)| *o = c).count();
         return (n, PriorSource::Border);
     }
+    // The union, at most `out.len()` of the most likely kept. `seen` is the set of the
+    // configurations in `out` (9 bits each), so a new configuration costs no search; `worst`
+    // is the least likely kept one once `out` is full.
+    let mut seen = [0u32; 16];
     let mut n = 0usize;
+    let mut worst: Option<usize> = None;
     for bit in 0..16 {
         let Some(c) = border_candidates(border ^ (1 << bit)) else {
             continue;
         };
         for cand in c.iter() {
-            let filled = out.get(..n).unwrap_or(&[]);
-            match filled.iter().position(|o| o.config == cand.config) {
-                Some(i) => {
-                    if let Some(o) = out.get_mut(i) {
-                        o.log_prior = o.log_prior.max(cand.log_prior);
-                    }
+            let (w, b) = (usize::from(cand.config >> 5) & 15, cand.config & 31);
+            if let Some(i) = worst {
+                // Full, and this border's candidates come most likely first: the rest of
+                // them cannot displace anything nor raise a kept log-prior.
+                if out.get(i).is_none_or(|o| cand.log_prior <= o.log_prior) {
+                    break;
                 }
-                None => {
-                    if let Some(o) = out.get_mut(n) {
-                        *o = cand;
-                        n += 1;
-                    } else if let Some(worst) = out.iter_mut().min_by_key(|o| o.log_prior) {
-                        // Full: keep the most likely.
-                        if cand.log_prior > worst.log_prior {
-                            *worst = cand;
-                        }
-                    }
+            }
+            if seen.get(w).copied().unwrap_or(0) >> b & 1 != 0 {
+                if let Some(o) = out
+                    .get_mut(..n)
+                    .and_then(|f| f.iter_mut().find(|o| o.config == cand.config))
+                {
+                    o.log_prior = o.log_prior.max(cand.log_prior);
                 }
+            } else if let Some(o) = out.get_mut(n) {
+                *o = cand;
+                n += 1;
+                if let Some(s) = seen.get_mut(w) {
+                    *s |= 1 << b;
+                }
+            } else if let Some(o) = worst.and_then(|i| out.get_mut(i)) {
+                // Full: the new one replaces the least likely.
+                let (ow, ob) = (usize::from(o.config >> 5) & 15, o.config & 31);
+                if let Some(s) = seen.get_mut(ow) {
+                    *s &= !(1 << ob);
+                }
+                *o = cand;
+                if let Some(s) = seen.get_mut(w) {
+                    *s |= 1 << b;
+                }
+            }
+            if n == out.len() {
+                worst = least_likely(out);
             }
         }
     }
@@ -312,23 +370,37 @@ pub fn candidates_into(border: u16, out: &mut [Candidate]) -> (usize, PriorSourc
     (n, PriorSource::Fallback)
 }
 
-/// Sorts by decreasing log-prior, ties by configuration. An insertion sort: `out` holds the
-/// sampler's few candidates (≤ 16), and core's `sort_unstable` cost 8.4 KB of flash.
+/// Index of the least likely of `c` (ties: the larger configuration, the one sorted last).
+fn least_likely(c: &[Candidate]) -> Option<usize> {
+    (0..c.len()).min_by_key(|&i| c.get(i).map_or(i32::MIN, sort_key))
+}
+
+/// Sort key, larger first: the log-prior, ties by smaller configuration.
+#[inline]
+fn sort_key(c: &Candidate) -> i32 {
+    (i32::from(c.log_prior) << 16) | i32::from(!c.config)
+}
+
+/// Sorts by decreasing log-prior, ties by configuration. An insertion sort on packed keys:
+/// `out` holds the sampler's few candidates (≤ 16), and core's `sort_unstable` cost 8.4 KB of
+/// flash.
 fn sort_most_likely_first(c: &mut [Candidate]) {
-    let before = |a: &Candidate, b: &Candidate| {
-        (a.log_prior, core::cmp::Reverse(a.config)) > (b.log_prior, core::cmp::Reverse(b.config))
-    };
     for i in 1..c.len() {
+        let Some(&cur) = c.get(i) else { break };
+        let key = sort_key(&cur);
         let mut j = i;
         while j > 0 {
-            let (Some(&prev), Some(&cur)) = (c.get(j - 1), c.get(j)) else {
-                break;
-            };
-            if !before(&cur, &prev) {
+            let Some(&prev) = c.get(j - 1) else { break };
+            if sort_key(&prev) >= key {
                 break;
             }
-            c.swap(j - 1, j);
+            if let Some(slot) = c.get_mut(j) {
+                *slot = prev;
+            }
             j -= 1;
+        }
+        if let Some(slot) = c.get_mut(j) {
+            *slot = cur;
         }
     }
 }

@@ -294,3 +294,34 @@ fn border_prior_caches_return_what_the_table_does() {
         }
     }
 }
+
+#[test]
+fn patch_averaging_matches_the_scalar_rule_row_by_row() {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(2);
+    let width = 5;
+    for _ in 0..5_000 {
+        let cells: Vec<u8> = (0..width * 3).map(|_| rng.next_u32() as u8).collect();
+        let (config, shift): (u32, u8) = (range(&mut rng, 0, 512), range(&mut rng, 1, 6));
+        // Patches whose last row ends at the map's last cell too (no byte after it).
+        let start: usize = range(&mut rng, 0, 3);
+        let mut fast = cells.clone();
+        u8::average_patch3(&mut fast, start, width, config, shift);
+        let mut want = cells.clone();
+        for r in 0..3 {
+            for k in 0..3 {
+                let i = start + r * width + k;
+                let m = u32::from(cells[i]);
+                let mut x = if config >> (3 * r + k) & 1 != 0 {
+                    255
+                } else {
+                    0
+                };
+                for _ in 0..shift {
+                    x = (x + m) / 2;
+                }
+                want[i] = x as u8;
+            }
+        }
+        assert_eq!(fast, want, "{cells:?} config {config:09b} shift {shift}");
+    }
+}

@@ -93,6 +93,56 @@ impl PatchEvidence {
     }
 }
 
+/// The evidence term of every configuration of one 3 × 3 patch, as three 8-entry tables of
+/// subset sums (one per row): a candidate's term is three loads and two adds, however many
+/// cells it sets. Equal to [`PatchEvidence::of`] with the same gains.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct PatchTerms([[i32; 8]; 3]);
+
+impl PatchTerms {
+    /// The terms of the 3 × 3 patch centred at `centre` (which keeps a 1-cell margin from the
+    /// map's edge; rows outside the map contribute nothing).
+    #[inline]
+    pub(crate) fn new(
+        map: &[LogOdds],
+        width: usize,
+        centre: CellCoord,
+        occ_q8: i32,
+        free_q8: i32,
+    ) -> Self {
+        let mut t = [[0i32; 8]; 3];
+        let x0 = centre.x - 1;
+        for (r, row) in t.iter_mut().enumerate() {
+            let y = centre.y - 1 + r as i32;
+            if y < 0 || x0 < 0 {
+                continue;
+            }
+            let start = y as usize * width + x0 as usize;
+            let Some(&[a, b, c]) = map.get(start..start + 3) else {
+                continue;
+            };
+            // |l| ≤ 2^15 and gains ≤ 2^12: each term fits an i32, nine of them too.
+            let v = |l: LogOdds| {
+                let l = i32::from(l.0);
+                (l * if l > 0 { occ_q8 } else { free_q8 }) >> 8
+            };
+            let (a, b, c) = (v(a), v(b), v(c));
+            *row = [0, a, b, a + b, c, a + c, b + c, a + b + c];
+        }
+        PatchTerms(t)
+    }
+
+    /// The evidence term of `config` ([`crate::patch`] bit order).
+    #[inline]
+    pub(crate) fn of(&self, config: u16) -> i32 {
+        let c = usize::from(config);
+        let [r0, r1, r2] = &self.0;
+        r0.get(c & 7).copied().unwrap_or(0)
+            + r1.get(c >> 3 & 7).copied().unwrap_or(0)
+            + r2.get(c >> 6 & 7).copied().unwrap_or(0)
+    }
+}
+
 /// The scale of free evidence (Q8) that matches a range sensor with Gaussian noise of `sigma`
 /// cells: the Hähnel inverse model frees every cell a beam passes and hits the cell it ends in,
 /// so at a wall's face a noisy beam passes the face cell with probability
@@ -176,6 +226,36 @@ mod tests {
         // Unobserved cells keep the current state, observed ones follow their sign.
         assert_eq!(e.data_config(0b1_1111_1111), 0b1_1111_1111 & !1);
         assert_eq!(e.data_config(0), 1 << 5 | 1 << 7);
+    }
+
+    #[test]
+    fn patch_terms_equal_the_per_cell_sum() {
+        let w = 6;
+        let mut state = 12345u32;
+        let mut next = || {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            state
+        };
+        for _ in 0..200 {
+            let map: Vec<LogOdds> = (0..w * 5)
+                .map(|_| {
+                    LogOdds(match next() % 4 {
+                        0 => 0,
+                        _ => (next() % 10_241) as i16 - 5120,
+                    })
+                })
+                .collect();
+            let centre = CellCoord {
+                x: 1 + (next() % 4) as i32,
+                y: 1 + (next() % 3) as i32,
+            };
+            let (occ, free) = ((next() % 4097) as i32, (next() % 4097) as i32);
+            let e = patch_evidence(&map, w, centre, 3);
+            let t = PatchTerms::new(&map, w, centre, occ, free);
+            for config in 0..512u16 {
+                assert_eq!(t.of(config), e.of(config, occ, free), "{config:09b}");
+            }
+        }
     }
 
     #[test]

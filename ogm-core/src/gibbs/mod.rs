@@ -103,6 +103,14 @@ pub trait Count: Copy + Default {
             }
         }
     }
+    /// [`Count::average_row`] of the three rows of a 3 × 3 patch, row r starting at
+    /// `start + r · width` with bits `3r ..= 3r + 2` of `config`.
+    #[inline]
+    fn average_patch3(counts: &mut [Self], start: usize, width: usize, config: u32, shift: u8) {
+        for r in 0..3 {
+            Self::average_row(counts, start + r * width, 3, config >> (3 * r), shift);
+        }
+    }
     /// The value of probability `p_q16 / 2^16` (clamped to 1), rounded to nearest.
     #[inline]
     fn from_probability_q16(p_q16: u32) -> Self {
@@ -181,10 +189,15 @@ impl Count for u8 {
             0x00FF_FFFF,
         ];
         let Some(w4) = counts.get_mut(start..start + 4).filter(|_| n == 3) else {
-            // Not a 3-cell row with a byte after it: one cell at a time.
+            // Not a 3-cell row with a byte after it: one cell at a time, the same rule.
             if let Some(row) = counts.get_mut(start..start + n) {
                 for (k, c) in row.iter_mut().enumerate() {
-                    *c = c.ema_bit(bits >> k & 1 != 0, shift);
+                    let m = u32::from(*c);
+                    let mut x = if bits >> k & 1 != 0 { 255 } else { 0 };
+                    for _ in 0..shift {
+                        x = (x + m) >> 1;
+                    }
+                    *c = x as u8;
                 }
             }
             return;
@@ -204,6 +217,39 @@ impl Count for u8 {
             }
         }
         w4.copy_from_slice(&x.to_le_bytes());
+    }
+    /// The robot's hot path: one bounds check for the patch, three unaligned word updates.
+    #[inline]
+    fn average_patch3(counts: &mut [Self], start: usize, width: usize, config: u32, shift: u8) {
+        let Some(area) = counts.get_mut(start..start + 2 * width + 4) else {
+            // At the map's last cell there is no byte after the patch: the general path.
+            for r in 0..3 {
+                Self::average_row(counts, start + r * width, 3, config >> (3 * r), shift);
+            }
+            return;
+        };
+        for r in 0..3 {
+            let Some(w4) = area
+                .get_mut(r * width..r * width + 4)
+                .and_then(|w| <&mut [u8; 4]>::try_from(w).ok())
+            else {
+                continue;
+            };
+            let m = u32::from_le_bytes(*w4);
+            let t = (config >> (3 * r)) & 7;
+            // Bytes 0..3 = 0xFF where bit k of t is set; byte 3 = m's (its target is itself).
+            let spread = (t & 1) | (t & 2) << 7 | (t & 4) << 14;
+            let mut x = spread * 0xFF | (m & 0xFF00_0000);
+            let half = |x: u32| (x & m) + (((x ^ m) & 0xFEFE_FEFE) >> 1);
+            if shift == 3 {
+                x = half(half(half(x)));
+            } else {
+                for _ in 0..shift {
+                    x = half(x);
+                }
+            }
+            *w4 = x.to_le_bytes();
+        }
     }
 }
 
@@ -1235,24 +1281,24 @@ where
             self.average_config(centre, first);
             return first;
         }
-        let (occ, free) = (self.ev_gain, self.ev_free_gain);
         let floor = i32::from(self.config.floor_log_prior);
         // The patch's log-odds, read only now that weights are needed.
-        let ev = patch_evidence(
+        let ev = evidence::PatchTerms::new(
             map,
             usize::from(self.geometry.width()),
             centre,
-            i32::from(self.prior.size()),
+            self.ev_gain,
+            self.ev_free_gain,
         );
         // Log-weights; the extra candidate last.
         let mut w = [0i32; MAX_CANDIDATES + 1];
         for ((wi, &c), &lp) in w.iter_mut().zip(configs).zip(log_priors) {
-            *wi = i32::from(lp) + ev.of(c, occ, free);
+            *wi = i32::from(lp) + ev.of(c);
         }
         let n = match extra {
             Some(d) => {
                 if let Some(wi) = w.get_mut(k) {
-                    *wi = floor + ev.of(d, occ, free);
+                    *wi = floor + ev.of(d);
                 }
                 k + 1
             }
@@ -1342,6 +1388,15 @@ where
             return n;
         }
         let (occ, free) = (self.ev_gain, self.ev_free_gain);
+        if use_ev && self.prior.size() == 3 {
+            // Subset-sum tables: O(1) per candidate.
+            let width = usize::from(self.geometry.width());
+            let t = evidence::PatchTerms::new(map, width, centre, occ, free);
+            for (wi, c) in w.iter_mut().zip(cands.iter()).take(n) {
+                *wi = c.log_prior.saturating_add(t.of(c.config));
+            }
+            return n;
+        }
         for (wi, c) in w.iter_mut().zip(cands.iter()).take(n) {
             *wi = if use_ev {
                 c.log_prior.saturating_add(ev.of(c.config, occ, free))
@@ -1410,6 +1465,12 @@ where
         let h = size / 2;
         let width = usize::from(self.geometry.width());
         let counts = self.buf.counts.as_mut();
+        if size == 3 {
+            // Patch centres keep the prior's margin from the edge: the patch is in the map.
+            let start = (centre.y - 1) as usize * width + (centre.x - 1) as usize;
+            N::average_patch3(counts, start, width, u32::from(config), shift);
+            return;
+        }
         for (r, dy) in (-h..=h).enumerate() {
             // Patch centres keep the prior's margin from the edge: the row is in the map.
             let start = (centre.y + dy) as usize * width + (centre.x - h) as usize;
