@@ -239,7 +239,7 @@ impl Count for u8 {
             let t = (config >> (3 * r)) & 7;
             // Bytes 0..3 = 0xFF where bit k of t is set; byte 3 = m's (its target is itself).
             let spread = (t & 1) | (t & 2) << 7 | (t & 4) << 14;
-            let mut x = spread * 0xFF | (m & 0xFF00_0000);
+            let mut x = (spread * 0xFF) | (m & 0xFF00_0000);
             let half = |x: u32| (x & m) + (((x ^ m) & 0xFEFE_FEFE) >> 1);
             if shift == 3 {
                 x = half(half(half(x)));
