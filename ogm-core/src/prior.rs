@@ -332,12 +332,17 @@ pub fn candidates_into(border: u16, out: &mut [Candidate]) -> (usize, PriorSourc
                     break;
                 }
             }
+            // Whether the least likely kept one may have changed.
+            let mut moved = false;
             if seen.get(w).copied().unwrap_or(0) >> b & 1 != 0 {
-                if let Some(o) = out
+                if let Some((i, o)) = out
                     .get_mut(..n)
-                    .and_then(|f| f.iter_mut().find(|o| o.config == cand.config))
+                    .and_then(|f| f.iter_mut().enumerate().find(|(_, o)| o.config == cand.config))
                 {
-                    o.log_prior = o.log_prior.max(cand.log_prior);
+                    if cand.log_prior > o.log_prior {
+                        o.log_prior = cand.log_prior;
+                        moved = worst == Some(i);
+                    }
                 }
             } else if let Some(o) = out.get_mut(n) {
                 *o = cand;
@@ -345,6 +350,7 @@ pub fn candidates_into(border: u16, out: &mut [Candidate]) -> (usize, PriorSourc
                 if let Some(s) = seen.get_mut(w) {
                     *s |= 1 << b;
                 }
+                moved = n == out.len();
             } else if let Some(o) = worst.and_then(|i| out.get_mut(i)) {
                 // Full: the new one replaces the least likely.
                 let (ow, ob) = (usize::from(o.config >> 5) & 15, o.config & 31);
@@ -355,8 +361,9 @@ pub fn candidates_into(border: u16, out: &mut [Candidate]) -> (usize, PriorSourc
                 if let Some(s) = seen.get_mut(w) {
                     *s |= 1 << b;
                 }
+                moved = true;
             }
-            if n == out.len() {
+            if moved {
                 worst = least_likely(out);
             }
         }
@@ -783,6 +790,23 @@ mod tests {
                     sources[1] += 1;
                     assert!(!border_seen(border));
                     assert!((0..16).any(|b| border_seen(border ^ (1 << b))));
+                    // Against a brute-force union: every configuration with its largest
+                    // log-prior over the neighbours, the most likely kept.
+                    let mut union = std::collections::BTreeMap::<u16, i16>::new();
+                    for b in 0..16 {
+                        for c in candidates(border ^ (1 << b), usize::MAX).iter() {
+                            if border_seen(border ^ (1 << b)) {
+                                let e = union.entry(c.config).or_insert(c.log_prior);
+                                *e = (*e).max(c.log_prior);
+                            }
+                        }
+                    }
+                    let mut want: Vec<i16> = union.values().copied().collect();
+                    want.sort_by(|a, b| b.cmp(a));
+                    want.truncate(16);
+                    let lps: Vec<i16> = got.iter().map(|c| c.log_prior).collect();
+                    assert_eq!(lps, want, "border {border:#06x}");
+                    assert!(got.iter().all(|c| union.get(&c.config) == Some(&c.log_prior)));
                     if n < 16 {
                         // Untruncated: the union is the same set after any rotation/flip.
                         let t = Dihedral::ALL[3];
