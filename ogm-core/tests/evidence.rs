@@ -196,10 +196,17 @@ fn strong_evidence_wins_over_the_prior() {
 
 #[test]
 fn raster_sweep_keeps_its_window_in_step() {
+    // An odd width (rows straddle words) and a multiple of 32 (the firmware's fast path).
+    for (w, h) in [(37, 29), (64, 40)] {
+        raster_sweep_on(w, h);
+    }
+}
+
+fn raster_sweep_on(w: u16, h: u16) {
     // Random maps and states, scans between steps (the map changes under the sampler): the
     // sampler's debug assertions compare its incremental window and masks with fresh reads on
     // every update (this test runs in the debug profile).
-    let g = GridGeometry::new(37, 29, 50, 0, 0).unwrap();
+    let g = GridGeometry::new(w, h, 50, 0, 0).unwrap();
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
     let mut map = random_map(&mut rng, g);
     let (mut s, mut st) = setup(g, evidence_config(2));
