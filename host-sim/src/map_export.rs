@@ -12,6 +12,13 @@
 //!   side-by-side strip (`eval-sim`'s per-map PNG, `comparison.png`) with `--panel I --panels N`.
 //!   The image has no scale: give `--resolution` (default 0.05 m) and `--origin`.
 //! * `--world FILE`: a ground-truth map (PNG / PGM / ROS YAML), re-exported as is.
+//! * `--stream FILE [--layer marginals|log-odds]`: a captured map stream of the robot (the bytes
+//!   its host link sent, complete or cut off anywhere): the grid size comes from its `Hello`,
+//!   the cell size and origin from its `Configured` (or `--resolution` / `--origin` if the
+//!   capture has none), and every tile in it is applied in order, so the latest state of each
+//!   tile wins. Cells whose log-odds is 0 (never measured) are unknown in both layers; cells
+//!   whose marginal tile is not in the capture yet take their log-odds probability (where the
+//!   robot's estimates start).
 //!
 //! Probability maps become trinary with `--occupied-thresh` (default 0.65) and `--free-thresh`
 //! (default 0.196); p = 0.5 exactly (no data) is always unknown.
@@ -53,10 +60,18 @@ pub struct ExportArgs {
     /// With --log: grid, range and method settings.
     #[command(flatten)]
     pub map: LogMapArgs,
-    /// With --probability-png: metres per pixel.
+    /// Source: a captured map stream from the robot (e.g. `firmware/target/qemu/uart1.out`).
+    #[arg(long, group = "source")]
+    pub stream: Option<PathBuf>,
+    /// With --stream: `marginals` (the sampler's map, the robot's product) or `log-odds` (the
+    /// traditional map).
+    #[arg(long, default_value = "marginals")]
+    pub layer: String,
+    /// With --probability-png (or a --stream without its config): metres per pixel.
     #[arg(long, default_value_t = 0.05)]
     pub resolution: f64,
-    /// With --probability-png: world position (m) of the lower-left corner, `X,Y`.
+    /// With --probability-png (or a --stream without its config): world position (m) of the
+    /// lower-left corner, `X,Y`.
     #[arg(long, default_value = "0,0", allow_hyphen_values = true)]
     pub origin: String,
     /// With --probability-png: take panel I (from 0) of a side-by-side strip of --panels maps.
@@ -160,8 +175,10 @@ pub fn run(a: &ExportArgs) -> anyhow::Result<()> {
         )
     } else if let Some(path) = &a.world {
         load_world(path, None)?
+    } else if let Some(path) = &a.stream {
+        world_from_stream(path, a)?
     } else {
-        bail!("give one source: --log, --probability-png or --world");
+        bail!("give one source: --log, --probability-png, --world or --stream");
     };
     let c = world.counts();
     for p in export_world(&a.out, &world)? {
@@ -179,6 +196,128 @@ pub fn run(a: &ExportArgs) -> anyhow::Result<()> {
         c.unknown
     );
     Ok(())
+}
+
+/// The map a captured stream carries (see the [module docs](self)).
+fn world_from_stream(path: &Path, a: &ExportArgs) -> anyhow::Result<World> {
+    use crate::link::{decode_file, DeviceEvent, StreamedMap};
+    let marginals = match a.layer.as_str() {
+        "marginals" => true,
+        "log-odds" => false,
+        other => bail!("--layer {other}: expected marginals or log-odds"),
+    };
+    let events = decode_file(path)?;
+    let hello = events
+        .iter()
+        .find_map(|e| match e {
+            DeviceEvent::Hello(h) => Some(h.clone()),
+            _ => None,
+        })
+        .with_context(|| {
+            format!(
+                "{}: no Hello in the stream (the grid size is in it): capture from the robot's boot",
+                path.display()
+            )
+        })?;
+    let (w, h) = (usize::from(hello.width), usize::from(hello.height));
+    ensure!(
+        w > 0 && h > 0 && hello.tile_edge > 0,
+        "{}: Hello gives an empty grid",
+        path.display()
+    );
+    let mut map = StreamedMap::new(w, h, usize::from(hello.tile_edge));
+    let (mut config, mut samples, mut bad_tiles) = (None, 0u32, 0usize);
+    // Cells whose marginal tile has arrived (the robot streams those round robin, so a short
+    // or cut-off capture may lack some).
+    let mut have_counts = vec![false; w * h];
+    for e in &events {
+        match e {
+            DeviceEvent::Configured(c) => config = Some(*c),
+            DeviceEvent::Sampler(r) => samples = r.samples,
+            DeviceEvent::Tile(t) => {
+                if map.apply(t).is_err() {
+                    bad_tiles += 1;
+                } else if t.layer == ogm_core::wire::Layer::Counts {
+                    for c in map.tile_cells(t.tx, t.ty).unwrap_or_default() {
+                        if let Some(x) = have_counts.get_mut(c) {
+                            *x = true;
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    ensure!(
+        map.tiles > 0,
+        "{}: no map tile in the stream ({} frames): nothing to export",
+        path.display(),
+        events.len()
+    );
+    if bad_tiles > 0 {
+        eprintln!(
+            "warning: {}: {bad_tiles} tiles did not fit the grid and were skipped",
+            path.display()
+        );
+    }
+    let (resolution, origin) = match &config {
+        Some(c) => (
+            f64::from(c.cell_mm) / 1000.0,
+            (
+                f64::from(c.origin_x_mm) / 1000.0,
+                f64::from(c.origin_y_mm) / 1000.0,
+            ),
+        ),
+        None => {
+            eprintln!(
+                "warning: {}: no Configured in the stream; using --resolution and --origin",
+                path.display()
+            );
+            (a.resolution, parse_origin(&a.origin)?)
+        }
+    };
+    ensure!(
+        resolution.is_finite() && resolution > 0.0,
+        "{}: cell size must be positive",
+        path.display()
+    );
+    // Marginal counts are probabilities × count_max under the averaging estimators, and sample
+    // counts out of `samples` under the paper's.
+    let counts_of_one = match config.map(|c| c.estimator) {
+        Some(ogm_core::gibbs::Estimator::Counts) => samples,
+        _ => hello.count_max,
+    };
+    let probs: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let l = map.log_odds.get(i).copied().unwrap_or(0);
+            if l == 0 {
+                return 0.5;
+            }
+            if marginals && have_counts.get(i) == Some(&true) {
+                let c = map.counts.get(i).copied().unwrap_or(0);
+                (f64::from(c) / f64::from(counts_of_one.max(1))).min(1.0)
+            } else {
+                ogm_core::LogOdds(l).probability()
+            }
+        })
+        .collect();
+    println!(
+        "{}: {} tiles applied, {}x{} cells, layer {}",
+        path.display(),
+        map.tiles,
+        w,
+        h,
+        a.layer
+    );
+    Ok(probabilities_to_world(
+        &probs,
+        w,
+        h,
+        resolution,
+        origin,
+        a.occupied_thresh,
+        a.free_thresh,
+    ))
 }
 
 fn world_from_log(log: &Path, a: &ExportArgs) -> anyhow::Result<World> {

@@ -217,6 +217,7 @@ fn export_maps() {
         ("--world", Kind::Map),
         ("--world", Kind::Yaml),
         ("--probability-png", Kind::Map),
+        ("--stream", Kind::Stream),
     ] {
         check(kind, |f, out| {
             vec![

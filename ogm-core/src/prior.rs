@@ -335,10 +335,11 @@ pub fn candidates_into(border: u16, out: &mut [Candidate]) -> (usize, PriorSourc
             // Whether the least likely kept one may have changed.
             let mut moved = false;
             if seen.get(w).copied().unwrap_or(0) >> b & 1 != 0 {
-                if let Some((i, o)) = out
-                    .get_mut(..n)
-                    .and_then(|f| f.iter_mut().enumerate().find(|(_, o)| o.config == cand.config))
-                {
+                if let Some((i, o)) = out.get_mut(..n).and_then(|f| {
+                    f.iter_mut()
+                        .enumerate()
+                        .find(|(_, o)| o.config == cand.config)
+                }) {
                     if cand.log_prior > o.log_prior {
                         o.log_prior = cand.log_prior;
                         moved = worst == Some(i);
@@ -806,7 +807,9 @@ mod tests {
                     want.truncate(16);
                     let lps: Vec<i16> = got.iter().map(|c| c.log_prior).collect();
                     assert_eq!(lps, want, "border {border:#06x}");
-                    assert!(got.iter().all(|c| union.get(&c.config) == Some(&c.log_prior)));
+                    assert!(got
+                        .iter()
+                        .all(|c| union.get(&c.config) == Some(&c.log_prior)));
                     if n < 16 {
                         // Untruncated: the union is the same set after any rotation/flip.
                         let t = Dihedral::ALL[3];
