@@ -5,8 +5,8 @@
 //! be asserted; this is not a timing test.
 //!
 //! Seed 1: 34 scans of the generated 12.8 m building, then half a second of board time standing
-//! still. Figures at the time of writing (`host-sim firmware --seed 1 --accuracy --idle 0.5`):
-//! log-odds 0.720; online after the last scan 0.806, after 0.5 s idle 0.84.
+//! still. Figures at the time of writing (`host-sim firmware --seed 1 --accuracy --idle 1,5`):
+//! log-odds 0.720; online after the last scan 0.813, after 1 s idle 0.846.
 
 use host_sim::firmware::{print_report, run, FirmwareArgs};
 
@@ -33,7 +33,7 @@ fn online_marginals_beat_the_log_odds_map() {
         f1("online_idle_0.5s"),
     );
     eprintln!("log-odds {trad:.4}, online {online:.4}, after 0.5 s idle {idle:.4}");
-    assert!(online >= trad + 0.06, "online {online} vs log-odds {trad}");
+    assert!(online >= trad + 0.08, "online {online} vs log-odds {trad}");
     assert!(
         idle >= trad + 0.10,
         "after idling {idle} vs log-odds {trad}"
