@@ -256,7 +256,7 @@ fn border_prior_caches_return_what_the_table_does() {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(4);
     let mut cached = BorderPrior::default();
     let plain = BorderPrior::default();
-    // Few distinct borders, so both caches hit and get replaced.
+    // Few distinct borders, so the border cache hits and gets replaced.
     let borders: Vec<u16> = (0..40)
         .map(|_| rng.next_u32() as u16)
         .chain([0, 0xFFFF])

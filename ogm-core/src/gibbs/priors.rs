@@ -99,7 +99,7 @@ impl PatchPrior for NeighbourPrior {
 /// borders of a map repeat (straight walls, open space): a hit replaces the table's bucket and
 /// binary search by one multiply and one load. Back-off results (borders the table lacks) are not
 /// cached: they are diverse (10 825 distinct in 96 104 back-offs of one simulated run, where even
-/// 512 cached results hit 21 % of the time), so their lookup is made cheap instead (the table's
+/// 512 cached results hit 21–23 % of the time), so their lookup is made cheap instead (the table's
 /// bit filter, [`crate::prior`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BorderPrior {
