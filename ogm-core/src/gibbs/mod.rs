@@ -177,17 +177,6 @@ impl Count for u8 {
     /// target is itself).
     #[inline]
     fn average_row(counts: &mut [Self], start: usize, n: usize, bits: u32, shift: u8) {
-        /// Bytes 0..3 = 0xFF where bit k of the index is set.
-        const TARGET: [u32; 8] = [
-            0x0000_0000,
-            0x0000_00FF,
-            0x0000_FF00,
-            0x0000_FFFF,
-            0x00FF_0000,
-            0x00FF_00FF,
-            0x00FF_FF00,
-            0x00FF_FFFF,
-        ];
         let Some(w4) = counts.get_mut(start..start + 4).filter(|_| n == 3) else {
             // Not a 3-cell row with a byte after it: one cell at a time, the same rule.
             if let Some(row) = counts.get_mut(start..start + n) {
@@ -204,19 +193,7 @@ impl Count for u8 {
         };
         let mut bytes = [0u8; 4];
         bytes.copy_from_slice(w4);
-        let m = u32::from_le_bytes(bytes);
-        let mut x = TARGET.get((bits & 7) as usize).copied().unwrap_or(0) | (m & 0xFF00_0000);
-        // Bytewise ⌊(x + m) / 2⌋ without carries between bytes.
-        let half = |x: u32| (x & m) + (((x ^ m) & 0xFEFE_FEFE) >> 1);
-        if shift == 3 {
-            // The robot's setting, unrolled.
-            x = half(half(half(x)));
-        } else {
-            for _ in 0..shift {
-                x = half(x);
-            }
-        }
-        w4.copy_from_slice(&x.to_le_bytes());
+        w4.copy_from_slice(&average_word(u32::from_le_bytes(bytes), bits, shift).to_le_bytes());
     }
     /// The robot's hot path: one bounds check for the patch, three unaligned word updates.
     #[inline]
@@ -235,22 +212,31 @@ impl Count for u8 {
             else {
                 continue;
             };
-            let m = u32::from_le_bytes(*w4);
-            let t = (config >> (3 * r)) & 7;
-            // Bytes 0..3 = 0xFF where bit k of t is set; byte 3 = m's (its target is itself).
-            let spread = (t & 1) | (t & 2) << 7 | (t & 4) << 14;
-            let mut x = (spread * 0xFF) | (m & 0xFF00_0000);
-            let half = |x: u32| (x & m) + (((x ^ m) & 0xFEFE_FEFE) >> 1);
-            if shift == 3 {
-                x = half(half(half(x)));
-            } else {
-                for _ in 0..shift {
-                    x = half(x);
-                }
-            }
-            *w4 = x.to_le_bytes();
+            *w4 = average_word(u32::from_le_bytes(*w4), config >> (3 * r), shift).to_le_bytes();
         }
     }
+}
+
+/// [`Count::average_row`] of three `u8` cells packed in bytes 0..3 of `m`, towards bits 0..3 of
+/// `bits`: `x ← t`, then `shift` times the bytewise halving add `x ← ⌊(x + m) / 2⌋`. Byte 3
+/// rides along unchanged (its target is itself).
+#[inline]
+fn average_word(m: u32, bits: u32, shift: u8) -> u32 {
+    // Bytes 0..3 = 0xFF where bit k of bits is set.
+    let t = bits & 7;
+    let spread = (t & 1) | (t & 2) << 7 | (t & 4) << 14;
+    let mut x = (spread * 0xFF) | (m & 0xFF00_0000);
+    // Bytewise ⌊(x + m) / 2⌋ without carries between bytes.
+    let half = |x: u32| (x & m) + (((x ^ m) & 0xFEFE_FEFE) >> 1);
+    if shift == 3 {
+        // The robot's setting, unrolled.
+        x = half(half(half(x)));
+    } else {
+        for _ in 0..shift {
+            x = half(x);
+        }
+    }
+    x
 }
 
 /// A candidate configuration with its log-prior (LSB units of [`crate::fixed::LSB_NATS`]).
