@@ -8,6 +8,10 @@
 use std::{env, fs, path::PathBuf};
 
 fn main() {
+    // The library also builds for the host (host-sim replays it): no linker scripts there.
+    if env::var("CARGO_CFG_TARGET_OS").as_deref() != Ok("none") {
+        return;
+    }
     let manifest_dir =
         PathBuf::from(env::var_os("CARGO_MANIFEST_DIR").expect("CARGO_MANIFEST_DIR"));
     let memory_x = manifest_dir.join("../memory.x");

@@ -22,7 +22,7 @@ bash scripts/firmware-toolchain.sh
 
 step "cargo fmt --check"
 cargo fmt --all -- --check
-rustfmt --edition 2021 --check firmware/build.rs firmware/src/main.rs fuzz/fuzz_targets/*.rs
+rustfmt --edition 2021 --check firmware/build.rs firmware/src/main.rs firmware/src/lib.rs fuzz/fuzz_targets/*.rs
 
 step "cargo clippy --workspace --all-targets -- -D warnings"
 cargo clippy --workspace --all-targets -- -D warnings

@@ -1,46 +1,33 @@
-//! The application: board-independent (it sees the board only through `embedded_io` traits,
-//! [`Timer`] and [`board::stack_usage`]).
+//! The application: board-independent. It sees the board only through `embedded_io` traits and
+//! [`Platform`], its memory only through [`Memory`].
 //!
 //! Main loop ([`run`]): receive bytes on the link → [`LinkRx`] (LD06 packets + host frames →
-//! scans with poses) → for each scan: log-odds update, seeding the cells it observed for the
-//! first time into the sampler's sample, its rays into the ray store, first-occupied caches
-//! refreshed (`ogm_core::pipeline::insert_and_seed`) → sampler steps for the rest of the scan
-//! period (bounded, see [`Budget`]) → report the scan, stream changed tiles. `Finish` from the host: stream everything still unsent, statistics, `Done`.
+//! scans with poses) → for each scan: [`Session::insert`] (log-odds update, seeding of newly
+//! observed cells into the sampler, rays into the store when the data term reads them) →
+//! sampler steps for the rest of the scan period (bounded, see [`Budget`]) → report the scan,
+//! stream changed tiles. `Finish` from the host: stream everything still unsent, statistics,
+//! `Done`.
 //!
 //! Determinism: nothing here depends on timing except the *number* of sampler updates under a
 //! time budget, and that number goes into the stream ([`ScanReport::sampler_updates`]); the host
-//! replays the same bytes through the same ogm-core code with those counts and must get the
-//! identical map (`host-sim firmware`).
+//! runs this same code on the same bytes with those counts ([`Platform::fixed_updates`]) and
+//! must stream the identical map (`host-sim firmware`).
 
-use defmt::{error, info, warn};
 use embedded_io::{Read, ReadReady, Write};
-use ogm_core::gibbs::{BorderPrior, Buffers as SamplerBuffers, Gibbs, LocalRay};
-use ogm_core::link::{LinkError, LinkRx, Step};
-use ogm_core::pipeline::insert_and_seed;
-use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::link::{LinkRx, Step};
+use ogm_core::session::{Buffers, Session, Sizes, Storage};
 use ogm_core::wire::firmware_sizes as sz;
 use ogm_core::wire::{
-    self, Budget, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello, IdleReport, Layer,
-    LinkCounters, RunConfig, SamplerReport, ScanReport, StoreReport, Tile,
+    self, Budget, ConfigFault, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello,
+    IdleReport, Layer, LinkCounters, RunConfig, ScanReport, Tile, TileRect,
 };
-use ogm_core::{Beam, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose};
+use ogm_core::{Beam, Pose, ScanBuf};
 
-use crate::board::{self, Timer, TICK_HZ};
-use crate::memory::{self, MapBuffers, BLOCK_WORDS, CELLS, MARK_WORDS, SAMPLE_WORDS};
+use crate::platform::{Platform, Work};
 use crate::selftest;
 
-type MapperT = Mapper<&'static mut [LogOdds; CELLS], &'static mut [u32; MARK_WORDS]>;
-type StoreT =
-    RayStore<&'static mut [StoredScan; memory::SCANS], &'static mut [StoredRay; memory::RAYS]>;
-type GibbsT = Gibbs<
-    BorderPrior,
-    &'static mut [u32; SAMPLE_WORDS],
-    &'static mut [u8; CELLS],
-    &'static mut [LocalRay; memory::LOCAL_RAYS],
-    &'static mut [u32; BLOCK_WORDS],
-    u8,
->;
-
+/// Beams per scan buffer.
+pub const MAX_BEAMS: usize = sz::MAX_BEAMS;
 const EDGE: usize = sz::TILE_EDGE as usize;
 const WIDTH: usize = sz::WIDTH as usize;
 const HEIGHT: usize = sz::HEIGHT as usize;
@@ -49,85 +36,51 @@ const TILES_Y: usize = HEIGHT.div_ceil(EDGE);
 const TILES: usize = TILES_X * TILES_Y;
 const DIRTY_WORDS: usize = TILES.div_ceil(32);
 
-/// Sampler updates between two looks at the clock under a time budget (~16 × 900 instructions
-/// = 14 µs at 1 GHz of QEMU icount; each call re-reads the sampler's window once).
+/// Sampler updates between two looks at the clock under a time budget (~16 × 700 instructions
+/// = 11 µs at 1 GHz of QEMU icount; each call re-reads the sampler's window once).
 const CHUNK: u32 = 16;
 
 /// How long to wait at boot for the first byte from a host before running the self-test.
 const HOST_WAIT_US: u64 = 100_000;
 
-/// What the main loop does after a step.
-#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-pub enum After {
+/// Everything the application works in, placed by the board (`static`s there, `Box`es on the
+/// host). The grid is `firmware_sizes::WIDTH × HEIGHT`.
+pub struct Memory<'a, S: Storage> {
+    /// The engine's buffers.
+    pub buffers: Buffers<S>,
+    /// Where the engine is built once the settings arrive (its ~2.5 KiB stay off the stack).
+    pub session: &'a mut Option<Session<S>>,
+    /// The scan being received.
+    pub scan: &'a mut ScanBuf<MAX_BEAMS>,
+    /// One encoded outgoing frame.
+    pub tx: &'a mut [u8; wire::MAX_DEVICE_FRAME],
+    /// One tile's cells, before encoding.
+    pub tile: &'a mut [u8; wire::MAX_TILE_BYTES],
+}
+
+/// What [`App::feed`] did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fed {
+    /// Nothing that ends a step.
     Nothing,
-    ScanDone,
+    /// Scan `seq` was mapped, reported and streamed.
+    Scan(u32),
+    /// Idle period `seq` was sampled and reported.
+    Idle(u32),
+    /// The host sent `Finish`; the run is over with this exit code.
+    Finished(i32),
+}
+
+/// What one link step asks of the main loop.
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum After {
+    Nothing,
+    Scan(u32),
+    Idle(u32),
     Finish,
 }
 
-/// The mapping state, built when the host's settings arrive.
-pub struct Machine {
-    pub config: RunConfig,
-    pub mapper: MapperT,
-    pub store: StoreT,
-    pub gibbs: GibbsT,
-}
-
-impl Machine {
-    /// Builds the mapper, ray store and sampler over the static buffers, in
-    /// [`memory::MACHINE`]; `Err(detail)` as in [`ErrorCode::BadConfig`]. Not inlined: its
-    /// temporaries (copies of the sampler's 2 KiB forward-model tables) are gone before the
-    /// main loop goes on.
-    #[inline(never)]
-    fn build(config: RunConfig, b: MapBuffers) -> Result<&'static mut Machine, u32> {
-        let slot = memory::MACHINE.put_with(|| None).ok_or(5u32)?;
-        let geometry = config.geometry(sz::WIDTH, sz::HEIGHT).map_err(|_| 0u32)?;
-        let grid = LogOddsGrid::new(geometry, b.grid).map_err(|_| 0u32)?;
-        let mapper = Mapper::new(grid, b.marks, config.mapper_config()).map_err(|_| 1u32)?;
-        // The evidence term reads no rays: no forward-model tables to build.
-        let forward = if config.data.uses_rays() {
-            config.forward_model().map_err(|_| 2u32)?
-        } else {
-            ogm_core::forward_model::ForwardModel::pcsm()
-        };
-        let store = RayStore::new(
-            geometry,
-            config.max_range_mm,
-            config.min_range_mm,
-            b.scans,
-            b.rays,
-        )
-        .map_err(|_| 3u32)?;
-        let gibbs = Gibbs::new(
-            geometry,
-            BorderPrior::default(),
-            forward,
-            config.sampler_config(),
-            SamplerBuffers {
-                sample: b.sample,
-                counts: b.counts,
-                local: b.local,
-                blocks: b.blocks,
-            },
-        )
-        .map_err(|_| 4u32)?;
-        let m = slot.insert(Machine {
-            config,
-            mapper,
-            store,
-            gibbs,
-        });
-        m.gibbs
-            .reset(m.mapper.grid().cells(), &mut m.store)
-            .map_err(|_| 4u32)?;
-        Ok(m)
-    }
-
-    fn geometry(&self) -> GridGeometry {
-        *self.mapper.grid().geometry()
-    }
-}
-
-/// Sums for the closing defmt summary.
+/// Sums for the closing summary.
 #[derive(Default)]
 struct Totals {
     scans: u32,
@@ -139,11 +92,21 @@ struct Totals {
     max_insert_ticks: u32,
 }
 
-pub struct App {
-    machine: Option<&'static mut Machine>,
-    spare: Option<MapBuffers>,
-    tx: &'static mut [u8; wire::MAX_DEVICE_FRAME],
-    tile: &'static mut [u8; wire::MAX_TILE_BYTES],
+/// The application: the link receiver, the scan buffer and the [`State`].
+pub struct App<'a, S: Storage> {
+    rx: LinkRx,
+    pub(crate) scan: &'a mut ScanBuf<MAX_BEAMS>,
+    pub(crate) state: State<'a, S>,
+}
+
+/// Everything but the receiver.
+pub(crate) struct State<'a, S: Storage> {
+    session: Option<&'a mut Session<S>>,
+    slot: Option<&'a mut Option<Session<S>>>,
+    spare: Option<Buffers<S>>,
+    sizes: Sizes,
+    tx: &'a mut [u8; wire::MAX_DEVICE_FRAME],
+    tile: &'a mut [u8; wire::MAX_TILE_BYTES],
     dirty: [u32; DIRTY_WORDS],
     dirty_cursor: usize,
     count_cursor: usize,
@@ -153,7 +116,7 @@ pub struct App {
     stack_config: u32,
 }
 
-/// Encodes `msg` into `tx` and writes it to `link`; failures are logged and counted.
+/// Encodes `msg` into `tx` and writes it to `link`; failures are logged.
 fn send<W: Write>(tx: &mut [u8], link: &mut W, msg: &DeviceMsg<'_>) {
     match wire::encode(msg, tx) {
         Ok(bytes) => {
@@ -169,27 +132,101 @@ fn ticks(t0: u32, t1: u32) -> u32 {
     t1.wrapping_sub(t0)
 }
 
-impl App {
-    pub fn new(
-        map: MapBuffers,
-        tx: &'static mut [u8; wire::MAX_DEVICE_FRAME],
-        tile: &'static mut [u8; wire::MAX_TILE_BYTES],
-    ) -> Self {
+impl<'a, S: Storage> App<'a, S> {
+    /// The application over `memory`, not yet configured.
+    pub fn new(memory: Memory<'a, S>) -> Self {
+        let sizes = memory.buffers.sizes();
         App {
-            machine: None,
-            spare: Some(map),
-            tx,
-            tile,
-            dirty: [0; DIRTY_WORDS],
-            dirty_cursor: 0,
-            count_cursor: 0,
-            counters: Counters::default(),
-            seq: 0,
-            totals: Totals::default(),
-            stack_config: 0,
+            rx: LinkRx::new(),
+            scan: memory.scan,
+            state: State {
+                session: None,
+                slot: Some(memory.session),
+                spare: Some(memory.buffers),
+                sizes,
+                tx: memory.tx,
+                tile: memory.tile,
+                dirty: [0; DIRTY_WORDS],
+                dirty_cursor: 0,
+                count_cursor: 0,
+                counters: Counters::default(),
+                seq: 0,
+                totals: Totals::default(),
+                stack_config: 0,
+            },
         }
     }
 
+    /// The engine, once configured.
+    pub fn session(&self) -> Option<&Session<S>> {
+        self.state.session.as_deref()
+    }
+
+    /// The device's counters so far.
+    pub fn counters(&self) -> Counters {
+        self.state.counters
+    }
+
+    /// The boot message with the compile-time sizes.
+    pub fn hello<W: Write, P: Platform>(&mut self, link: &mut W, platform: &P) {
+        let _ = platform; // only its type: name and tick rate
+        self.state.hello::<W, P>(link);
+    }
+
+    /// Applies settings as if the host had sent them (the self-test; a robot's stored
+    /// defaults).
+    pub fn configure<W: Write, P: Platform>(
+        &mut self,
+        link: &mut W,
+        platform: &mut P,
+        config: RunConfig,
+    ) {
+        self.state.configure(link, platform, config);
+    }
+
+    /// Counts a UART receive error and reports it.
+    pub fn uart_error<W: Write>(&mut self, link: &mut W) {
+        let s = &mut self.state;
+        s.counters.uart_errors = s.counters.uart_errors.saturating_add(1);
+        s.report_error(link, ErrorCode::Uart, 0);
+    }
+
+    /// Feeds bytes from the link: maps, samples, reports and streams whatever they complete.
+    /// Stops at `Finish` (the rest of `bytes` is ignored) and returns [`Fed::Finished`];
+    /// otherwise the last scan or idle period completed, if any.
+    pub fn feed<W: Write, P: Platform>(
+        &mut self,
+        bytes: &[u8],
+        link: &mut W,
+        platform: &mut P,
+    ) -> Fed {
+        let mut fed = Fed::Nothing;
+        for &b in bytes {
+            let mut after = After::Nothing;
+            let state = &mut self.state;
+            self.rx.feed(core::slice::from_ref(&b), self.scan, |step| {
+                after = after.max(state.on_step(step, link, platform));
+            });
+            match after {
+                After::Nothing => {}
+                After::Scan(seq) | After::Idle(seq) => {
+                    self.state.report(link, self.rx.counters());
+                    fed = if matches!(after, After::Scan(_)) {
+                        Fed::Scan(seq)
+                    } else {
+                        Fed::Idle(seq)
+                    };
+                }
+                After::Finish => {
+                    return Fed::Finished(self.state.finish(link, platform, self.rx.counters()))
+                }
+            }
+        }
+        fed
+    }
+}
+
+impl<S: Storage> State<'_, S> {
     fn send<W: Write>(&mut self, link: &mut W, msg: &DeviceMsg<'_>) {
         send(&mut self.tx[..], link, msg);
     }
@@ -204,19 +241,18 @@ impl App {
         self.send(link, &DeviceMsg::Error(DeviceError { code, seq, detail }));
     }
 
-    /// The boot message with the compile-time sizes.
-    pub fn hello<W: Write>(&mut self, link: &mut W) {
+    fn hello<W: Write, P: Platform>(&mut self, link: &mut W) {
         let hello = Hello {
             firmware: concat!("ogm-firmware ", env!("CARGO_PKG_VERSION")),
-            board: board::BOARD_NAME,
-            tick_hz: TICK_HZ,
-            width: sz::WIDTH,
-            height: sz::HEIGHT,
+            board: P::NAME,
+            tick_hz: P::TICK_HZ,
+            width: self.sizes.width,
+            height: self.sizes.height,
             tile_edge: sz::TILE_EDGE,
-            max_beams: sz::MAX_BEAMS as u32,
-            ray_capacity: memory::RAYS as u32,
-            scan_capacity: memory::SCANS as u32,
-            local_capacity: memory::LOCAL_RAYS as u32,
+            max_beams: MAX_BEAMS as u32,
+            ray_capacity: self.sizes.rays as u32,
+            scan_capacity: self.sizes.scans as u32,
+            local_capacity: self.sizes.local as u32,
             count_max: u32::from(u8::MAX),
         };
         self.send(link, &DeviceMsg::Hello(hello));
@@ -224,33 +260,57 @@ impl App {
 
     /// Applies the host's settings (once; a repeat of the settings in use is ignored — the host
     /// repeats its frames on a noisy link).
-    pub fn configure<W: Write>(&mut self, link: &mut W, config: RunConfig) {
+    fn configure<W: Write, P: Platform>(
+        &mut self,
+        link: &mut W,
+        platform: &mut P,
+        config: RunConfig,
+    ) {
         let Some(bufs) = self.spare.take() else {
-            if self.machine.as_ref().is_some_and(|m| m.config == config) {
+            if self.session.as_ref().is_some_and(|m| *m.config() == config) {
                 return;
             }
             self.report_error(link, ErrorCode::ConfigTwice, 0);
             return;
         };
-        match Machine::build(config, bufs) {
+        // The tile stream is cut for the firmware's grid.
+        if (usize::from(bufs.width), usize::from(bufs.height)) != (WIDTH, HEIGHT) {
+            let detail = ConfigFault::Geometry.detail();
+            self.report_error(link, ErrorCode::BadConfig, detail);
+            return;
+        }
+        let Some(slot) = self.slot.take() else {
+            let detail = ConfigFault::NoRoom.detail();
+            self.report_error(link, ErrorCode::BadConfig, detail);
+            return;
+        };
+        match build(slot, config, bufs) {
             Ok(m) => {
                 info!("config: {}", config);
-                self.machine = Some(m);
+                self.session = Some(m);
                 // Building the sampler is the deepest the stack ever gets (copies of its 2 KiB
                 // forward-model tables); note it, then measure the mapping loop on its own.
-                self.stack_config = board::stack_usage().used;
-                board::repaint_stack();
+                self.stack_config = platform.stack_usage().used;
+                platform.repaint_stack();
                 self.send(link, &DeviceMsg::Configured(config));
             }
-            Err(detail) => self.report_error(link, ErrorCode::BadConfig, detail),
+            Err(e) => {
+                error!("config rejected: {}", e);
+                self.report_error(link, ErrorCode::BadConfig, e.fault().detail());
+            }
         }
     }
 
     /// One step from the link.
-    pub fn on_step<W: Write>(&mut self, step: Step<'_>, link: &mut W, timer: &Timer) -> After {
+    fn on_step<W: Write, P: Platform>(
+        &mut self,
+        step: Step<'_>,
+        link: &mut W,
+        platform: &mut P,
+    ) -> After {
         match step {
             Step::Config(c) => {
-                self.configure(link, c);
+                self.configure(link, platform, c);
                 After::Nothing
             }
             Step::Scan {
@@ -260,25 +320,16 @@ impl App {
                 overflow,
             } => {
                 self.seq = seq;
-                self.process_scan(link, timer, seq, &pose, beams, overflow);
-                After::ScanDone
+                self.process_scan(link, platform, seq, &pose, beams, overflow);
+                After::Scan(seq)
             }
             Step::Finish => After::Finish,
             Step::Idle { seq, period_us } => {
-                self.idle(link, timer, seq, period_us);
-                After::ScanDone
+                self.idle(link, platform, seq, period_us);
+                After::Idle(seq)
             }
             Step::Error(e) => {
-                let (code, detail) = match e {
-                    LinkError::Ld06(ogm_core::ld06::Ld06Error::Crc) => (ErrorCode::Link, 0),
-                    LinkError::Ld06(ogm_core::ld06::Ld06Error::Truncated) => (ErrorCode::Link, 1),
-                    LinkError::Ld06(ogm_core::ld06::Ld06Error::BadHeader) => (ErrorCode::Link, 2),
-                    LinkError::Frame(_) => (ErrorCode::Link, 3),
-                    LinkError::FrameTooLong => (ErrorCode::Link, 4),
-                    LinkError::ScanSequence { seq } => (ErrorCode::ScanSequence, seq),
-                    LinkError::PointsLost { lost, .. } => (ErrorCode::PointsLost, lost),
-                    LinkError::PointsOutsideScan => (ErrorCode::Link, 5),
-                };
+                let (code, detail) = e.code();
                 self.report_error(link, code, detail);
                 After::Nothing
             }
@@ -286,14 +337,23 @@ impl App {
     }
 
     /// An idle period: the sampler alone for `period_us` of board time, then its report.
-    pub fn idle<W: Write>(&mut self, link: &mut W, timer: &Timer, seq: u32, period_us: u32) {
-        let Some(m) = self.machine.as_deref_mut() else {
+    fn idle<W: Write, P: Platform>(
+        &mut self,
+        link: &mut W,
+        platform: &mut P,
+        seq: u32,
+        period_us: u32,
+    ) {
+        let Some(m) = self.session.as_deref_mut() else {
             self.report_error(link, ErrorCode::NoConfig, 0);
             return;
         };
-        let t0 = timer.now();
-        let updates = sample_until(m, timer, t0, period_us, u32::MAX);
-        let ticks = ticks(t0, timer.now());
+        let t0 = platform.now();
+        let updates = match platform.fixed_updates(Work::Idle(seq)) {
+            Some(n) => m.step(n),
+            None => sample_until(m, platform, t0, period_us, u32::MAX),
+        };
+        let ticks = ticks(t0, platform.now());
         self.totals.updates += u64::from(updates);
         self.totals.sampler_ticks += u64::from(ticks);
         info!(
@@ -310,17 +370,11 @@ impl App {
         );
     }
 
-    /// Counts a UART receive error.
-    pub fn uart_error<W: Write>(&mut self, link: &mut W) {
-        self.counters.uart_errors = self.counters.uart_errors.saturating_add(1);
-        self.report_error(link, ErrorCode::Uart, 0);
-    }
-
     /// Ingests one scan: log-odds update with seeding, ray store, sampler, report, tiles.
-    pub fn process_scan<W: Write>(
+    pub(crate) fn process_scan<W: Write, P: Platform>(
         &mut self,
         link: &mut W,
-        timer: &Timer,
+        platform: &mut P,
         seq: u32,
         pose: &Pose,
         beams: &[Beam],
@@ -331,7 +385,7 @@ impl App {
                 self.counters.beams_overflowed.saturating_add(overflow);
             self.report_error(link, ErrorCode::ScanOverflow, overflow);
         }
-        let Some(m) = self.machine.as_deref_mut() else {
+        let Some(m) = self.session.as_deref_mut() else {
             self.report_error(link, ErrorCode::NoConfig, 0);
             return;
         };
@@ -342,18 +396,21 @@ impl App {
             beams_overflowed: overflow,
             ..ScanReport::default()
         };
-        let t0 = timer.now();
+        let t0 = platform.now();
         // Log-odds update, seeding of the cells observed for the first time, ray store and
-        // first-occupied refresh in one step (the host replay makes the same call).
-        let inserted = insert_and_seed(&mut m.mapper, &mut m.store, &mut m.gibbs, pose, beams);
-        let t1 = timer.now();
-        let updates = run_budget(m, timer, t0);
-        let t2 = timer.now();
+        // first-occupied refresh in one step.
+        let inserted = m.insert_rays(pose, beams);
+        let t1 = platform.now();
+        let updates = match platform.fixed_updates(Work::Scan(seq)) {
+            Some(n) => m.step(n),
+            None => run_budget(m, platform, t0),
+        };
+        let t2 = platform.now();
         // `store_ticks` stays 0: the ray store and the cache refresh are inside `insert_ticks`.
         (report.insert_ticks, report.sampler_ticks) = (ticks(t0, t1), ticks(t1, t2));
         report.sampler_updates = updates;
         let geometry = m.geometry();
-        let mapper_config = *m.mapper.config();
+        let mapper_config = *m.mapper().config();
         match inserted {
             Ok((stats, range)) => {
                 report.set_scan_stats(&stats);
@@ -364,7 +421,10 @@ impl App {
                 self.report_error(link, ErrorCode::Map, 0);
             }
         }
-        mark_dirty(&mut self.dirty, &geometry, &mapper_config, pose, beams);
+        // The ray model changes nothing outside the box around the pose's cell and every
+        // beam's end cell.
+        let (lo, hi) = ogm_core::mapper::scan_box(&geometry, &mapper_config, pose, beams);
+        mark_dirty(&mut self.dirty, (lo.x, lo.y), (hi.x, hi.y));
         self.counters.scans = self.counters.scans.saturating_add(1);
         let t = &mut self.totals;
         t.scans += 1;
@@ -391,17 +451,18 @@ impl App {
     /// Sends changed log-odds tiles and marginal-count tiles: the per-scan quota, or (`all`)
     /// every changed log-odds tile and every count and sample tile.
     fn stream_tiles<W: Write>(&mut self, link: &mut W, all: bool) {
-        let Some(m) = self.machine.as_deref() else {
+        let Some(m) = self.session.as_deref() else {
             return;
         };
         let (quota, count_quota) = if all {
             (TILES, TILES)
         } else {
             (
-                usize::from(m.config.tiles_per_scan),
-                usize::from(m.config.count_tiles_per_scan),
+                usize::from(m.config().tiles_per_scan),
+                usize::from(m.config().count_tiles_per_scan),
             )
         };
+        let (tx, tile) = (&mut self.tx[..], &mut self.tile[..]);
         let mut sent = 0;
         let start = self.dirty_cursor;
         for k in 0..TILES {
@@ -411,14 +472,7 @@ impl App {
             let t = (start + k) % TILES;
             let (w, bit) = (t / 32, 1u32 << (t % 32));
             if self.dirty.get(w).is_some_and(|d| d & bit != 0) {
-                send_tile(
-                    &mut self.tx[..],
-                    &mut self.tile[..],
-                    link,
-                    m,
-                    Layer::LogOdds,
-                    t,
-                );
+                send_tile(tx, tile, link, m, Layer::LogOdds, t);
                 if let Some(d) = self.dirty.get_mut(w) {
                     *d &= !bit;
                 }
@@ -428,41 +482,21 @@ impl App {
         }
         for _ in 0..count_quota.min(TILES) {
             let t = self.count_cursor;
-            send_tile(
-                &mut self.tx[..],
-                &mut self.tile[..],
-                link,
-                m,
-                Layer::Counts,
-                t,
-            );
+            send_tile(tx, tile, link, m, Layer::Counts, t);
             self.count_cursor = (t + 1) % TILES;
         }
         if all {
             for t in 0..TILES {
-                send_tile(
-                    &mut self.tx[..],
-                    &mut self.tile[..],
-                    link,
-                    m,
-                    Layer::Sample,
-                    t,
-                );
+                send_tile(tx, tile, link, m, Layer::Sample, t);
             }
         }
     }
 
     /// Sampler/store statistics and counters.
-    pub fn report<W: Write>(&mut self, link: &mut W, link_counters: LinkCounters) {
+    pub(crate) fn report<W: Write>(&mut self, link: &mut W, link_counters: LinkCounters) {
         self.counters.link = link_counters;
-        if let Some(m) = self.machine.as_deref() {
-            let store = StoreReport::new(
-                &m.store.stats(),
-                m.store.decimation(),
-                m.store.scans().len(),
-                m.store.rays().len(),
-            );
-            let r = SamplerReport::new(&m.gibbs.stats(), m.gibbs.samples(), store);
+        if let Some(m) = self.session.as_deref() {
+            let r = m.sampler_report();
             send(&mut self.tx[..], link, &DeviceMsg::Sampler(r));
         }
         let c = self.counters;
@@ -470,10 +504,15 @@ impl App {
     }
 
     /// End of the run: everything still unsent, statistics, `Done`; returns the exit code.
-    pub fn finish<W: Write>(&mut self, link: &mut W, link_counters: LinkCounters) -> i32 {
+    pub(crate) fn finish<W: Write, P: Platform>(
+        &mut self,
+        link: &mut W,
+        platform: &P,
+        link_counters: LinkCounters,
+    ) -> i32 {
         self.stream_tiles(link, true);
         self.report(link, link_counters);
-        let stack = board::stack_usage();
+        let stack = platform.stack_usage();
         let mut done = Done {
             scans: self.counters.scans,
             stack_used: stack.used,
@@ -481,21 +520,21 @@ impl App {
             stack_config: self.stack_config,
             ..Done::default()
         };
-        if let Some(m) = self.machine.as_deref() {
-            done.grid_fnv = wire::grid_fnv(m.mapper.grid().cells());
-            done.counts_fnv = (0..CELLS).fold(wire::FNV_START, |h, i| {
-                wire::fnv1a(h, &[m.gibbs.count(i) as u8])
+        if let Some(m) = self.session.as_deref() {
+            done.grid_fnv = wire::grid_fnv(m.log_odds());
+            done.counts_fnv = (0..m.log_odds().len()).fold(wire::FNV_START, |h, i| {
+                wire::fnv1a(h, &[wire::TileSource::count(m, i)])
             });
         }
         self.send(link, &DeviceMsg::Done(done));
         let _ = link.flush();
-        self.summary(&done);
+        self.summary::<P>(&done);
         0
     }
 
-    fn summary(&self, done: &Done) {
+    fn summary<P: Platform>(&self, done: &Done) {
         let t = &self.totals;
-        let ns = |ticks: u64| ticks * Timer::ticks_to_ns(1);
+        let ns = |ticks: u64| P::ticks_to_ns(ticks);
         let n = u64::from(t.scans.max(1));
         info!(
             "done: {=u32} scans, {=u32} errors; grid fnv {=u32:08x}, counts fnv {=u32:08x}",
@@ -519,53 +558,58 @@ impl App {
             t.updates,
             ns(t.sampler_ticks) * 1000 / t.updates.max(1)
         );
-        if let Some(m) = self.machine.as_deref() {
-            info!("sampler: {}", m.gibbs.stats());
-            info!("ray store: {}", m.store.stats());
+        if let Some(m) = self.session.as_deref() {
+            info!("sampler: {}", m.gibbs().stats());
+            info!("ray store: {}", m.store().stats());
         }
     }
 }
 
-/// Sampler updates for one scan; `t0` = when the scan was complete.
-fn run_budget(m: &mut Machine, timer: &Timer, t0: u32) -> u32 {
-    match m.config.budget {
-        Budget::Fixed { updates } => m.gibbs.step(&mut m.store, m.mapper.grid().cells(), updates),
+/// Builds the engine in `slot`. Not inlined: its temporaries (copies of the sampler's 2 KiB
+/// forward-model tables) are gone before the main loop goes on.
+#[inline(never)]
+fn build<S: Storage>(
+    slot: &mut Option<Session<S>>,
+    config: RunConfig,
+    bufs: Buffers<S>,
+) -> Result<&mut Session<S>, ogm_core::session::SessionError> {
+    Ok(slot.insert(Session::new(config, bufs)?))
+}
+
+/// Sampler updates for one scan under the run's budget; `t0` = when the scan was complete.
+fn run_budget<S: Storage, P: Platform>(m: &mut Session<S>, platform: &P, t0: u32) -> u32 {
+    match m.config().budget {
+        Budget::Fixed { updates } => m.step(updates),
         Budget::Time {
             period_us,
             max_updates,
-        } => sample_until(m, timer, t0, period_us, max_updates),
+        } => sample_until(m, platform, t0, period_us, max_updates),
     }
 }
 
 /// Sampler updates until `period_us` of board time after `t0` or `max_updates`, whichever comes
 /// first; returns how many.
-fn sample_until(m: &mut Machine, timer: &Timer, t0: u32, period_us: u32, max_updates: u32) -> u32 {
+fn sample_until<S: Storage, P: Platform>(
+    m: &mut Session<S>,
+    platform: &P,
+    t0: u32,
+    period_us: u32,
+    max_updates: u32,
+) -> u32 {
     // Ticks fit a u32 for periods up to 171 s at 25 MHz; longer ones are cut there.
     let period =
-        (u64::from(period_us) * u64::from(TICK_HZ) / 1_000_000).min(u64::from(u32::MAX)) as u32;
+        (u64::from(period_us) * u64::from(P::TICK_HZ) / 1_000_000).min(u64::from(u32::MAX)) as u32;
     let mut done = 0u32;
-    while done < max_updates && timer.now().wrapping_sub(t0) < period {
-        done += m.gibbs.step(
-            &mut m.store,
-            m.mapper.grid().cells(),
-            CHUNK.min(max_updates - done),
-        );
+    while done < max_updates && platform.now().wrapping_sub(t0) < period {
+        done += m.step(CHUNK.min(max_updates - done));
     }
     done
 }
 
-/// Marks the tiles a scan can have changed: the box around the pose's cell and every beam's end
-/// cell (the ray model changes nothing outside it), clipped to the grid.
-fn mark_dirty(
-    dirty: &mut [u32],
-    g: &GridGeometry,
-    cfg: &MapperConfig,
-    pose: &Pose,
-    beams: &[Beam],
-) {
-    let (lo, hi) = ogm_core::mapper::scan_box(g, cfg, pose, beams);
-    let (x0, y0, x1, y1) = (lo.x, lo.y, hi.x, hi.y);
-    let (w, h) = (i32::from(g.width()), i32::from(g.height()));
+/// Marks the tiles that overlap the cell box `lo ..= hi` (clipped to the grid) as changed.
+fn mark_dirty(dirty: &mut [u32], lo: (i32, i32), hi: (i32, i32)) {
+    let ((x0, y0), (x1, y1)) = (lo, hi);
+    let (w, h) = (WIDTH as i32, HEIGHT as i32);
     if x1 < 0 || y1 < 0 || x0 >= w || y0 >= h {
         return;
     }
@@ -580,75 +624,40 @@ fn mark_dirty(
     }
 }
 
-/// Encodes tile `t` of `layer` and sends it.
-fn send_tile<W: Write>(
+/// Encodes tile `t` of `layer` ([`wire::encode_tile`]) and sends it.
+fn send_tile<W: Write, S: Storage>(
     tx: &mut [u8],
     buf: &mut [u8],
     link: &mut W,
-    m: &Machine,
+    m: &Session<S>,
     layer: Layer,
     t: usize,
 ) {
-    let (tx0, ty0) = ((t % TILES_X) * EDGE, (t / TILES_X) * EDGE);
-    let (tw, th) = (EDGE.min(WIDTH - tx0), EDGE.min(HEIGHT - ty0));
-    let cells = m.mapper.grid().cells();
-    let mut n = 0;
-    match layer {
-        Layer::LogOdds => {
-            for y in ty0..ty0 + th {
-                for x in tx0..tx0 + tw {
-                    let v = cells.get(y * WIDTH + x).map_or(0, |c| c.raw());
-                    if let Some(d) = buf.get_mut(n..n + 2) {
-                        d.copy_from_slice(&v.to_le_bytes());
-                    }
-                    n += 2;
-                }
-            }
+    let Some(rect) = TileRect::nth(WIDTH, HEIGHT, EDGE, t) else {
+        return;
+    };
+    let data = match wire::encode_tile(m, layer, &rect, buf) {
+        Ok(d) => d,
+        Err(e) => {
+            error!("tile {=usize}: {}", t, e);
+            return;
         }
-        Layer::Counts => {
-            for y in ty0..ty0 + th {
-                for x in tx0..tx0 + tw {
-                    if let Some(d) = buf.get_mut(n) {
-                        *d = m.gibbs.count(y * WIDTH + x) as u8;
-                    }
-                    n += 1;
-                }
-            }
-        }
-        Layer::Sample => {
-            let bytes = (tw * th).div_ceil(8);
-            if let Some(d) = buf.get_mut(..bytes) {
-                d.fill(0);
-            }
-            let mut k = 0;
-            for y in ty0..ty0 + th {
-                for x in tx0..tx0 + tw {
-                    if m.gibbs.occupied(y * WIDTH + x) {
-                        if let Some(d) = buf.get_mut(k / 8) {
-                            *d |= 1 << (k % 8);
-                        }
-                    }
-                    k += 1;
-                }
-            }
-            n = bytes;
-        }
-    }
-    let data = buf.get(..n).unwrap_or(&[]);
+    };
+    let (tx_, ty_) = rect.coords();
     let tile = Tile {
         layer,
-        tx: (tx0 / EDGE) as u16,
-        ty: (ty0 / EDGE) as u16,
+        tx: tx_,
+        ty: ty_,
         data,
     };
     send(tx, link, &DeviceMsg::Tile(tile));
 }
 
 /// Waits up to [`HOST_WAIT_US`] for the first byte from a host.
-fn wait_for_host<L: ReadReady>(link: &mut L, timer: &Timer) -> bool {
-    let limit = (HOST_WAIT_US * u64::from(TICK_HZ) / 1_000_000) as u32;
-    let t0 = timer.now();
-    while timer.now().wrapping_sub(t0) < limit {
+fn wait_for_host<L: ReadReady, P: Platform>(link: &mut L, platform: &P) -> bool {
+    let limit = (HOST_WAIT_US * u64::from(P::TICK_HZ) / 1_000_000) as u32;
+    let t0 = platform.now();
+    while platform.now().wrapping_sub(t0) < limit {
         if link.read_ready().unwrap_or(false) {
             return true;
         }
@@ -658,33 +667,18 @@ fn wait_for_host<L: ReadReady>(link: &mut L, timer: &Timer) -> bool {
 
 /// The firmware: hello, then the host-driven main loop (or the self-test if no host speaks
 /// within [`HOST_WAIT_US`]). Returns the exit code.
-pub fn run<L: Read + ReadReady + Write>(link: &mut L, timer: &Timer) -> i32 {
-    let Some(memory::Buffers {
-        map,
-        scan,
-        tx,
-        tile,
-    }) = memory::take()
-    else {
-        defmt::panic!("buffers taken twice");
-    };
-    let mut app = App::new(map, tx, tile);
-    info!(
-        "memory: {=usize} B grid, {=usize} B counts, {=usize} rays, {=usize} scans, {=usize} local rays, {=usize} beams/scan",
-        core::mem::size_of::<[LogOdds; CELLS]>(),
-        CELLS,
-        memory::RAYS,
-        memory::SCANS,
-        memory::LOCAL_RAYS,
-        sz::MAX_BEAMS
-    );
-    app.hello(link);
-    if !wait_for_host(link, timer) {
+pub fn run<L: Read + ReadReady + Write, S: Storage, P: Platform>(
+    memory: Memory<'_, S>,
+    link: &mut L,
+    platform: &mut P,
+) -> i32 {
+    let mut app = App::new(memory);
+    app.hello(link, platform);
+    if !wait_for_host(link, platform) {
         info!("no host on the link: self-test");
-        return selftest::run(&mut app, link, timer, scan);
+        return selftest::run(&mut app, link, platform);
     }
     info!("host connected");
-    let mut rx = LinkRx::new();
     let mut chunk = [0u8; 64];
     loop {
         let n = match link.read(&mut chunk) {
@@ -694,16 +688,8 @@ pub fn run<L: Read + ReadReady + Write>(link: &mut L, timer: &Timer) -> i32 {
                 continue;
             }
         };
-        for &b in chunk.get(..n).unwrap_or(&[]) {
-            let mut after = After::Nothing;
-            rx.feed(core::slice::from_ref(&b), scan, |step| {
-                after = after.max(app.on_step(step, link, timer));
-            });
-            match after {
-                After::Nothing => {}
-                After::ScanDone => app.report(link, rx.counters()),
-                After::Finish => return app.finish(link, rx.counters()),
-            }
+        if let Fed::Finished(code) = app.feed(chunk.get(..n).unwrap_or(&[]), link, platform) {
+            return code;
         }
     }
 }

@@ -1,13 +1,11 @@
-//! ogm-firmware: online occupancy grid mapping with a patch Gibbs sampler on a Cortex-M4F.
+//! ogm-firmware: online occupancy grid mapping with a patch Gibbs sampler on a Cortex-M4F. The
+//! binary of one board: its hardware and memory around the board-independent application
+//! (the `ogm_firmware` library, `src/lib.rs`, which the host replays to check it).
 //!
 //! * `board/` — everything that knows a hardware address (QEMU mps2-an386 today; an nRF52840
 //!   would be one more module): UARTs, timer, defmt transport, exit, faults;
 //! * `memory` — every large buffer, as `static`s in `.bss` (sizes from
-//!   `ogm_core::wire::firmware_sizes`);
-//! * `app` — the board-independent application: the link (LD06 packets + host frames on one
-//!   UART, `ogm_core::link`), log-odds update, ray store, sampler under a per-scan budget, and
-//!   the postcard map stream (`ogm_core::wire`);
-//! * `selftest` — a synthetic room through the same code when no host is on the link.
+//!   `ogm_core::wire::firmware_sizes`).
 //!
 //! See docs/firmware.md (build, run, RAM layout, figures) and docs/wire.md (the stream).
 #![no_std]
@@ -17,9 +15,7 @@
 #[allow(unsafe_code)] // all hardware access (and all `unsafe`) lives in here
 mod board;
 
-mod app;
 mod memory;
-mod selftest;
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
@@ -55,7 +51,19 @@ fn main() -> ! {
         (cal_ns * 1000 + cal_insns / 2) / cal_insns
     );
 
-    let code = app::run(&mut board.link, &board.timer);
+    let Some(memory) = memory::take() else {
+        defmt::panic!("buffers taken twice");
+    };
+    info!(
+        "memory: {=usize} B grid, {=usize} B counts, {=usize} rays, {=usize} scans, {=usize} local rays, {=usize} beams/scan",
+        core::mem::size_of::<[ogm_core::LogOdds; memory::CELLS]>(),
+        memory::CELLS,
+        memory::RAYS,
+        memory::SCANS,
+        memory::LOCAL_RAYS,
+        ogm_firmware::app::MAX_BEAMS
+    );
+    let code = ogm_firmware::app::run(memory, &mut board.link, &mut board.timer);
     let stack = board::stack_usage();
     info!(
         "stack: {=u32} of {=u32} bytes used since the settings were applied (high-water mark)",

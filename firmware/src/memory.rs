@@ -7,9 +7,11 @@ use crate::board::{StaticArray, StaticBuf, StaticSlot};
 use ogm_core::gibbs::{block_words, LocalRay};
 use ogm_core::mapper::marks_len;
 use ogm_core::ray_store::{StoredRay, StoredScan};
+use ogm_core::session::{Buffers, Session, Storage};
 use ogm_core::wire::firmware_sizes as sz;
 use ogm_core::wire::{MAX_DEVICE_FRAME, MAX_TILE_BYTES};
 use ogm_core::{LogOdds, ScanBuf};
+use ogm_firmware::Memory;
 
 /// Cells of the map.
 pub const CELLS: usize = sz::CELLS;
@@ -53,34 +55,31 @@ static TX: StaticBuf<[u8; MAX_DEVICE_FRAME]> = StaticBuf::new([0; MAX_DEVICE_FRA
 /// One tile's cells, before encoding.
 static TILE: StaticBuf<[u8; MAX_TILE_BYTES]> = StaticBuf::new([0; MAX_TILE_BYTES]);
 
-/// The mapping state itself (~2.5 KiB, mostly the sampler's forward-model tables): a `static`
+/// The mapping engine itself (~2.5 KiB, mostly the sampler's forward-model tables): a `static`
 /// too, so it lives in no stack frame.
-pub static MACHINE: StaticSlot<Option<crate::app::Machine>> = StaticSlot::new();
+static SESSION: StaticSlot<Option<Session<Static>>> = StaticSlot::new();
 
-/// The mapping state's buffers (used once the host's settings are known).
-pub struct MapBuffers {
-    pub grid: &'static mut [LogOdds; CELLS],
-    pub marks: &'static mut [u32; MARK_WORDS],
-    pub sample: &'static mut [u32; SAMPLE_WORDS],
-    pub counts: &'static mut [u8; CELLS],
-    pub rays: &'static mut [StoredRay; RAYS],
-    pub scans: &'static mut [StoredScan; SCANS],
-    pub local: &'static mut [LocalRay; LOCAL_RAYS],
-    pub blocks: &'static mut [u32; BLOCK_WORDS],
+/// This firmware's storage: every buffer a `&'static mut` array of the sizes above.
+pub struct Static;
+
+impl Storage for Static {
+    type Count = u8;
+    type Grid = &'static mut [LogOdds; CELLS];
+    type Marks = &'static mut [u32; MARK_WORDS];
+    type Scans = &'static mut [StoredScan; SCANS];
+    type Rays = &'static mut [StoredRay; RAYS];
+    type Sample = &'static mut [u32; SAMPLE_WORDS];
+    type Counts = &'static mut [u8; CELLS];
+    type Local = &'static mut [LocalRay; LOCAL_RAYS];
+    type Blocks = &'static mut [u32; BLOCK_WORDS];
 }
 
-/// All of it.
-pub struct Buffers {
-    pub map: MapBuffers,
-    pub scan: &'static mut ScanBuf<{ sz::MAX_BEAMS }>,
-    pub tx: &'static mut [u8; MAX_DEVICE_FRAME],
-    pub tile: &'static mut [u8; MAX_TILE_BYTES],
-}
-
-/// The buffers, the first time; `None` afterwards.
-pub fn take() -> Option<Buffers> {
-    Some(Buffers {
-        map: MapBuffers {
+/// All of it, the first time; `None` afterwards.
+pub fn take() -> Option<Memory<'static, Static>> {
+    Some(Memory {
+        buffers: Buffers {
+            width: sz::WIDTH,
+            height: sz::HEIGHT,
             grid: GRID.take()?,
             marks: MARKS.take()?,
             sample: SAMPLE.take()?,
@@ -90,6 +89,7 @@ pub fn take() -> Option<Buffers> {
             local: LOCAL_BUF.take_filled(LocalRay::default)?,
             blocks: BLOCKS.take()?,
         },
+        session: SESSION.put_with(|| None)?,
         scan: SCAN.take()?,
         tx: TX.take()?,
         tile: TILE.take()?,

@@ -1,5 +1,5 @@
 //! Self-test when no host is on the link (e.g. `scripts/firmware.sh run`): maps a synthetic
-//! square room from four poses through the same code path as host scans ([`App::process_scan`],
+//! square room from four poses through the same code path as host scans (`App` scan processing,
 //! sampler included) and streams the result to the link as usual (UART1 → a file), so the run
 //! logs the per-scan/per-cell/per-patch instruction counts without a host.
 //!
@@ -11,11 +11,12 @@
 //! * inserts: the [`POSES`] in order; sampler: [`UPDATES_PER_SCAN`] patch updates per scan, seed 1.
 
 use embedded_io::Write;
+use ogm_core::session::Storage;
 use ogm_core::wire::{Budget, LinkCounters, RunConfig};
 use ogm_core::{Angle, Beam, Pose, Range, ScanBuf};
 
 use crate::app::App;
-use crate::board::Timer;
+use crate::platform::Platform;
 
 /// Beams per synthetic scan.
 const BEAMS: u32 = 360;
@@ -44,11 +45,10 @@ const fn pose(x_mm: i32, y_mm: i32, heading_deg: u32) -> Pose {
 }
 
 /// Runs the self-test; returns the exit code.
-pub fn run<W: Write, const N: usize>(
-    app: &mut App,
+pub fn run<W: Write, S: Storage, P: Platform>(
+    app: &mut App<'_, S>,
     link: &mut W,
-    timer: &Timer,
-    scan: &mut ScanBuf<N>,
+    platform: &mut P,
 ) -> i32 {
     let config = RunConfig::robot(
         (-6400, -6400),
@@ -58,13 +58,15 @@ pub fn run<W: Write, const N: usize>(
             updates: UPDATES_PER_SCAN,
         },
     );
-    app.configure(link, config);
+    app.configure(link, platform, config);
     for (k, p) in POSES.iter().enumerate() {
-        room_scan(p, scan);
-        app.process_scan(link, timer, k as u32, p, scan.beams(), scan.overflow());
-        app.report(link, LinkCounters::default());
+        room_scan(p, app.scan);
+        let (beams, overflow) = (app.scan.beams(), app.scan.overflow());
+        app.state
+            .process_scan(link, platform, k as u32, p, beams, overflow);
+        app.state.report(link, LinkCounters::default());
     }
-    app.finish(link, LinkCounters::default())
+    app.state.finish(link, platform, LinkCounters::default())
 }
 
 /// Fills `scan` with the synthetic square-room scan seen from `pose`.

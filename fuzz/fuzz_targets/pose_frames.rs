@@ -2,7 +2,7 @@
 //! frames (`Config` with any field values, `ScanStart` with any pose — far outside the map
 //! included —, `ScanEnd`, `Finish`), LD06 packets (any distance, zero = no return, more than a
 //! scan buffer holds), raw bytes and flipped bits, through `ogm_core::link::LinkRx` into the
-//! firmware's per-scan step: `pipeline::insert_and_seed` (mapper, seeding, ray store, cache
+//! firmware's engine, `ogm_core::session::Session`: `insert` (mapper, seeding, ray store, cache
 //! refresh), sampler steps, and the tile-box computation of the firmware's `mark_dirty`
 //! (`Pose::beam_end` → `GridGeometry::cell_of_point`). A 64 × 64 grid and small buffers keep
 //! an input fast. Invariants: nothing panics; log-odds stay within the clamp; the sampler's
@@ -11,14 +11,12 @@
 
 use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
-use ogm_core::gibbs::{block_words, BorderPrior, Buffers, DataTerm, Estimator, Gibbs, LocalRay};
+use ogm_core::gibbs::{DataTerm, Estimator};
 use ogm_core::ld06::{Packet, Point, POINTS};
 use ogm_core::link::{LinkRx, Step};
-use ogm_core::mapper::marks_len;
-use ogm_core::pipeline::insert_and_seed;
-use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::wire::{self, Budget, HostMsg, RunConfig, WirePose, MAX_HOST_FRAME};
-use ogm_core::{LogOdds, LogOddsGrid, Mapper, ScanBuf};
+use ogm_core::ScanBuf;
 
 const W: u16 = 64;
 const H: u16 = 64;
@@ -103,43 +101,16 @@ fn packet(out: &mut Vec<u8>, p: Packet) {
     out.extend_from_slice(&p.to_bytes());
 }
 
-type Machine = (
-    RunConfig,
-    Mapper<Vec<LogOdds>, Vec<u32>>,
-    RayStore<Vec<StoredScan>, Vec<StoredRay>>,
-    Gibbs<BorderPrior, Vec<u32>, Vec<u8>, Vec<LocalRay>, Vec<u32>, u8>,
-);
-
-/// Builds the mapping state as the firmware's `Machine::build` does (small buffers).
-fn build(config: RunConfig) -> Option<Machine> {
-    let g = config.geometry(W, H).ok()?;
-    let grid = LogOddsGrid::new(g, vec![LogOdds::ZERO; g.len()]).ok()?;
-    let mapper = Mapper::new(grid, vec![0; marks_len(g.len())], config.mapper_config()).ok()?;
-    let forward = config.forward_model().ok()?;
-    let mut store = RayStore::new(
-        g,
-        config.max_range_mm,
-        config.min_range_mm,
-        vec![StoredScan::default(); 8],
-        vec![StoredRay::default(); 256],
-    )
-    .ok()?;
-    let sc = config.sampler_config();
-    let mut gibbs = Gibbs::new(
-        g,
-        BorderPrior::default(),
-        forward,
-        sc,
-        Buffers {
-            sample: vec![0; g.len().div_ceil(32)],
-            counts: vec![0u8; g.len()],
-            local: vec![LocalRay::default(); 32],
-            blocks: vec![0; block_words(32, sc.block_grid)],
-        },
-    )
-    .ok()?;
-    gibbs.reset(mapper.grid().cells(), &mut store).ok()?;
-    Some((config, mapper, store, gibbs))
+/// The firmware's engine (small buffers).
+fn build(config: RunConfig) -> Option<Session<Owned<u8>>> {
+    let sizes = Sizes {
+        width: W,
+        height: H,
+        rays: 256,
+        scans: 8,
+        local: 32,
+    };
+    Session::new(config, Owned::buffers(&sizes)).ok()
 }
 
 fuzz_target!(|items: Vec<Item>| {
@@ -315,7 +286,7 @@ fuzz_target!(|items: Vec<Item>| {
 
     let mut rx = LinkRx::new();
     let mut scan: ScanBuf<MAX_BEAMS> = ScanBuf::new();
-    let mut machine: Option<Machine> = None;
+    let mut machine: Option<Session<Owned<u8>>> = None;
     let mut configured = false;
     let mut scans = 0u32;
     rx.feed(&bytes, &mut scan, |step| match step {
@@ -327,23 +298,28 @@ fuzz_target!(|items: Vec<Item>| {
         }
         Step::Scan { pose, beams, .. } => {
             assert!(beams.len() <= MAX_BEAMS);
-            let Some((config, mapper, store, gibbs)) = machine.as_mut() else {
+            let Some(m) = machine.as_mut() else {
                 return;
             };
             scans += 1;
-            let _ = insert_and_seed(mapper, store, gibbs, &pose, beams);
-            if let Budget::Fixed { updates } = config.budget {
-                gibbs.step(store, mapper.grid().cells(), updates.min(256));
+            let _ = m.insert(&pose, beams);
+            if let Budget::Fixed { updates } = m.config().budget {
+                m.step(updates.min(256));
             }
             // The firmware's `mark_dirty` box (the pose and every beam end).
-            let (lo, hi) =
-                ogm_core::mapper::scan_box(mapper.grid().geometry(), mapper.config(), &pose, beams);
+            let (lo, hi) = ogm_core::mapper::scan_box(
+                m.mapper().grid().geometry(),
+                m.mapper().config(),
+                &pose,
+                beams,
+            );
             assert!(lo.x <= hi.x && lo.y <= hi.y);
         }
         Step::Finish | Step::Idle { .. } | Step::Error(_) => {}
     });
     rx.finish(|_| {});
-    if let Some((_, mapper, _, gibbs)) = machine.as_ref() {
+    if let Some(m) = machine.as_ref() {
+        let (mapper, gibbs) = (m.mapper(), m.gibbs());
         let clamp = mapper.config().clamp;
         for l in mapper.grid().cells() {
             assert!(

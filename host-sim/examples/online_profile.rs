@@ -1,8 +1,9 @@
 //! Profiling aid: the firmware's per-scan loop on the host (firmware sizes, `u8` counts), for
 //! callgrind: `valgrind --tool=callgrind --toggle-collect='*Gibbs*step*'
 //! target/release/examples/online_profile [UPDATES] [data] [estimator]`.
-use host_sim::firmware::{firmware_world, run_config, FirmwareArgs, Replay, FIRMWARE_SIZES};
+use host_sim::firmware::{firmware_world, run_config, FirmwareArgs, FIRMWARE_SIZES};
 use host_sim::sim::{simulate, SimConfig};
+use ogm_core::session::{Owned, Session};
 
 fn main() -> anyhow::Result<()> {
     let updates: u32 = std::env::args()
@@ -21,9 +22,10 @@ fn main() -> anyhow::Result<()> {
     let world = firmware_world(&args)?;
     let sim = simulate(&world, &SimConfig::default(), 1)?;
     let config = run_config(&world, &args, sim.mapper_config.max_range_mm);
-    let mut r = Replay::<u8>::new(config, FIRMWARE_SIZES)?;
-    for (seq, s) in sim.scans.iter().enumerate() {
-        r.scan(seq as u32, &s.pose, &s.beams, 0, updates);
+    let mut r = Session::new(config, Owned::<u8>::buffers(&FIRMWARE_SIZES))?;
+    for s in &sim.scans {
+        r.insert(&s.pose, &s.beams)?;
+        r.step(updates);
     }
     println!("{:?}", r.gibbs().stats());
     Ok(())

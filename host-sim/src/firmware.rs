@@ -28,18 +28,14 @@ use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, ensure, Context};
-use ogm_core::gibbs::{
-    block_words, BorderPrior, Buffers as SamplerBuffers, Count, Gibbs, LocalRay,
-};
-use ogm_core::link::{LinkRx, Step};
-use ogm_core::mapper::marks_len;
-use ogm_core::pipeline::insert_and_seed;
-use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::gibbs::Count;
+use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::wire::{
-    firmware_sizes as fw, Budget, Counters, Done, Layer, RunConfig, SamplerReport, ScanReport,
-    StoreReport,
+    firmware_sizes as fw, Budget, Counters, Done, RunConfig, SamplerReport, ScanReport,
 };
-use ogm_core::{LogOdds, LogOddsGrid, Mapper, ScanBuf};
+use ogm_core::ScanBuf;
+use ogm_firmware::app::MAX_BEAMS;
+use ogm_firmware::{App, Fed, Memory, Platform, Work};
 use serde::Serialize;
 
 use crate::link::{
@@ -419,213 +415,118 @@ struct Online<'a> {
     idle_marks: &'a [f64],
 }
 
-/// Buffer sizes of a replay.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Sizes {
-    /// Ray store rays.
-    pub rays: usize,
-    /// Ray store scans.
-    pub scans: usize,
-    /// Per-tile ray list.
-    pub local: usize,
-}
-
-impl Sizes {
-    /// The ray store's sizes as a firmware reports them in its Hello (one of each without its
-    /// `rays` feature).
-    pub fn of(hello: &HelloInfo) -> Sizes {
-        Sizes {
-            rays: (hello.ray_capacity as usize).max(1),
-            scans: (hello.scan_capacity as usize).max(1),
-            local: (hello.local_capacity as usize).max(1),
-        }
+/// The ray store's sizes as a firmware reports them in its Hello (one of each without its
+/// `rays` feature).
+pub fn sizes_of(hello: &HelloInfo) -> Sizes {
+    Sizes {
+        width: hello.width,
+        height: hello.height,
+        rays: (hello.ray_capacity as usize).max(1),
+        scans: (hello.scan_capacity as usize).max(1),
+        local: (hello.local_capacity as usize).max(1),
     }
 }
 
 /// The compile-time sizes of the firmware built with its `rays` feature.
 pub const FIRMWARE_SIZES: Sizes = Sizes {
+    width: fw::WIDTH,
+    height: fw::HEIGHT,
     rays: fw::RAYS,
     scans: fw::SCANS,
     local: fw::LOCAL_RAYS,
 };
 
-/// The sampler of a replay.
-pub type ReplayGibbs<N> = Gibbs<BorderPrior, Vec<u32>, Vec<N>, Vec<LocalRay>, Vec<u32>, N>;
+/// The engine of a replay: the firmware's, over `Vec`s with counters of type `N`.
+pub type ReplaySession<N> = Session<Owned<N>>;
 
-/// The mapping state of a replay: what the firmware's `app::Machine` holds, in `Vec`s.
-pub struct Replay<N: Count> {
-    config: RunConfig,
-    mapper: Mapper<Vec<LogOdds>, Vec<u32>>,
-    store: RayStore<Vec<StoredScan>, Vec<StoredRay>>,
-    gibbs: ReplayGibbs<N>,
+/// Marginal p(occupied) per cell of `s` (0.5 before the first sample).
+pub fn marginals<N: Count>(s: &ReplaySession<N>) -> Vec<f64> {
+    (0..s.log_odds().len())
+        .map(|i| s.marginal(i).map_or(0.5, f64::from))
+        .collect()
 }
 
-impl<N: Count> Replay<N> {
-    /// Built exactly as the firmware builds it (same order, same calls).
-    pub fn new(config: RunConfig, sizes: Sizes) -> anyhow::Result<Self> {
-        let e = |what: &str, err: ogm_core::Error| anyhow!("{what}: {err}");
-        let geometry = config
-            .geometry(fw::WIDTH, fw::HEIGHT)
-            .map_err(|x| e("geometry", x))?;
-        let grid = LogOddsGrid::new(geometry, vec![LogOdds::ZERO; geometry.len()])
-            .map_err(|x| e("grid", x))?;
-        let mapper = Mapper::new(grid, vec![0; marks_len(geometry.len())], {
-            let mut mc = config.mapper_config();
-            if let Ok(p) = std::env::var("OGM_PFREE") {
-                mc.model =
-                    ogm_core::sensor_model::InverseSensorModel::beam(0.8, p.parse().unwrap(), 0.5)
-                        .unwrap();
-            }
-            mc
-        })
-        .map_err(|x| e("mapper", x))?;
-        let forward = config.forward_model().map_err(|x| e("forward model", x))?;
-        let mut store = RayStore::new(
-            geometry,
-            config.max_range_mm,
-            config.min_range_mm,
-            vec![StoredScan::default(); sizes.scans],
-            vec![StoredRay::default(); sizes.rays],
-        )
-        .map_err(|x| e("ray store", x))?;
-        let mut gibbs = Gibbs::new(
-            geometry,
-            BorderPrior::default(),
-            forward,
-            config.sampler_config(),
-            SamplerBuffers {
-                sample: vec![0; geometry.len().div_ceil(32)],
-                counts: vec![N::default(); geometry.len()],
-                local: vec![LocalRay::default(); sizes.local],
-                blocks: vec![
-                    0;
-                    block_words(sizes.local, ogm_core::wire::firmware_sizes::BLOCK_GRID)
-                ],
-            },
-        )
-        .map_err(|x| e("sampler", x))?;
-        gibbs
-            .reset(mapper.grid().cells(), &mut store)
-            .map_err(|x| e("sampler reset", x))?;
-        Ok(Replay {
-            config,
-            mapper,
-            store,
-            gibbs,
-        })
+/// The host as the firmware application's platform: no clock, and exactly the sampler updates
+/// the firmware reported for each scan and idle period.
+struct HostPlatform<F> {
+    updates: F,
+    missing: Option<Work>,
+}
+
+impl<F: Fn(Work) -> Option<u32>> Platform for HostPlatform<F> {
+    const NAME: &'static str = "host replay";
+    const TICK_HZ: u32 = 1_000_000_000;
+
+    fn now(&self) -> u32 {
+        0
     }
 
-    /// The firmware's `process_scan`, minus the timing.
-    pub fn scan(
-        &mut self,
-        seq: u32,
-        pose: &ogm_core::Pose,
-        beams: &[ogm_core::Beam],
-        overflow: u32,
-        updates: u32,
-    ) -> (ScanReport, bool) {
-        let mut r = ScanReport {
-            seq,
-            pose: (*pose).into(),
-            beams: beams.len() as u32,
-            beams_overflowed: overflow,
-            sampler_updates: updates,
-            ..ScanReport::default()
-        };
-        let inserted = insert_and_seed(
-            &mut self.mapper,
-            &mut self.store,
-            &mut self.gibbs,
-            pose,
-            beams,
-        );
-        self.gibbs
-            .step(&mut self.store, self.mapper.grid().cells(), updates);
-        let ok = match inserted {
-            Ok((s, range)) => {
-                r.set_scan_stats(&s);
-                r.rays_stored = range.len() as u32;
-                true
-            }
-            Err(_) => false,
-        };
-        (r, ok)
+    fn fixed_updates(&mut self, work: Work) -> Option<u32> {
+        let n = (self.updates)(work);
+        if n.is_none() {
+            self.missing.get_or_insert(work);
+        }
+        Some(n.unwrap_or(0))
     }
+}
 
-    /// The firmware's idle period: `updates` sampler updates.
-    pub fn idle(&mut self, updates: u32) {
-        self.gibbs
-            .step(&mut self.store, self.mapper.grid().cells(), updates);
-    }
+/// The firmware application's memory on the host.
+struct HostMemory<N: Count> {
+    session: Option<ReplaySession<N>>,
+    scan: ScanBuf<MAX_BEAMS>,
+    tx: [u8; ogm_core::wire::MAX_DEVICE_FRAME],
+    tile: [u8; ogm_core::wire::MAX_TILE_BYTES],
+}
 
-    /// The sampler/store report the firmware sends.
-    pub fn sampler_report(&self) -> SamplerReport {
-        let store = StoreReport::new(
-            &self.store.stats(),
-            self.store.decimation(),
-            self.store.scans().len(),
-            self.store.rays().len(),
-        );
-        SamplerReport::new(&self.gibbs.stats(), self.gibbs.samples(), store)
+/// Runs the robot's input through **the firmware's own application** (`ogm_firmware::App`, the
+/// library every board binary runs) on the host, byte by byte, with `sizes` and
+/// `updates(work)` sampler updates for each scan and idle period; `hook` sees the engine after
+/// every scan and idle period, `end` the final engine (`None` if no valid `Config` arrived) and
+/// everything the application streamed (its `Hello` first).
+fn replay<N: Count, R>(
+    input: &[u8],
+    sizes: Sizes,
+    updates: impl Fn(Work) -> Option<u32>,
+    mut hook: impl FnMut(Fed, &ReplaySession<N>),
+    end: impl FnOnce(Option<&ReplaySession<N>>, &[u8]) -> R,
+) -> anyhow::Result<R> {
+    let mut memory = Box::new(HostMemory::<N> {
+        session: None,
+        scan: ScanBuf::new(),
+        tx: [0; ogm_core::wire::MAX_DEVICE_FRAME],
+        tile: [0; ogm_core::wire::MAX_TILE_BYTES],
+    });
+    let HostMemory {
+        session,
+        scan,
+        tx,
+        tile,
+    } = &mut *memory;
+    let mut app = App::new(Memory {
+        buffers: Owned::<N>::buffers(&sizes),
+        session,
+        scan,
+        tx,
+        tile,
+    });
+    let mut platform = HostPlatform {
+        updates,
+        missing: None,
+    };
+    let mut out = Vec::new();
+    app.hello(&mut out, &platform);
+    for b in input {
+        let fed = app.feed(std::slice::from_ref(b), &mut out, &mut platform);
+        if let Some(w) = platform.missing {
+            bail!("the firmware did not report {w:?}");
+        }
+        match (fed, app.session()) {
+            (Fed::Scan(_) | Fed::Idle(_), Some(s)) => hook(fed, s),
+            (Fed::Finished(_), _) => break,
+            _ => {}
+        }
     }
-
-    /// A tile's bytes as the firmware encodes them.
-    pub fn tile(
-        &self,
-        map: &StreamedMap,
-        layer: Layer,
-        tx: u16,
-        ty: u16,
-    ) -> anyhow::Result<Vec<u8>> {
-        let cells = map.tile_cells(tx, ty)?;
-        let grid = self.mapper.grid().cells();
-        Ok(match layer {
-            Layer::LogOdds => cells
-                .iter()
-                .flat_map(|&i| grid[i].raw().to_le_bytes())
-                .collect(),
-            Layer::Counts => cells
-                .iter()
-                .map(|&i| self.gibbs.count(i).min(255) as u8)
-                .collect(),
-            Layer::Sample => {
-                let mut v = vec![0u8; cells.len().div_ceil(8)];
-                for (k, &i) in cells.iter().enumerate() {
-                    if self.gibbs.occupied(i) {
-                        v[k / 8] |= 1 << (k % 8);
-                    }
-                }
-                v
-            }
-        })
-    }
-
-    /// Marginal p(occupied) per cell (0.5 before the first sample).
-    pub fn marginals(&self) -> Vec<f64> {
-        (0..self.mapper.grid().cells().len())
-            .map(|i| self.gibbs.marginal(i).map_or(0.5, f64::from))
-            .collect()
-    }
-
-    /// The settings.
-    pub fn config(&self) -> &RunConfig {
-        &self.config
-    }
-
-    /// The log-odds map.
-    pub fn log_odds(&self) -> &[LogOdds] {
-        self.mapper.grid().cells()
-    }
-
-    /// The sampler.
-    pub fn gibbs(&self) -> &ReplayGibbs<N> {
-        &self.gibbs
-    }
-
-    /// The ray store.
-    pub fn store(&self) -> &RayStore<Vec<StoredScan>, Vec<StoredRay>> {
-        &self.store
-    }
+    Ok(end(app.session(), &out))
 }
 
 /// The firmware's messages grouped by scan.
@@ -733,115 +634,9 @@ impl Checker {
     }
 }
 
-/// What the replay driver reports per scan.
-enum ReplayEvent<'a, N: Count> {
-    /// Scan `seq` was processed (before the byte's end).
-    Scan(u32, &'a ScanReport, &'a Replay<N>),
-    /// After the byte that completed scan `seq`: the firmware reports its statistics here.
-    AfterScan(u32, &'a Counters, &'a Replay<N>),
-    /// Idle period `seq` was sampled.
-    Idle(u32, &'a Replay<N>),
-}
-
-/// Sampler work the firmware reported: after scan `seq`, or in idle period `seq`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Work {
-    /// The updates after a scan.
-    Scan(u32),
-    /// The updates of an idle period.
-    Idle(u32),
-}
-
-/// Runs the robot's input through the firmware's logic on the host: byte by byte through
-/// `LinkRx` (as the firmware does), `updates(Work::Scan(seq))` sampler updates after each scan
-/// and `updates(Work::Idle(seq))` in each idle period.
-fn replay<N: Count>(
-    input: &[u8],
-    sizes: Sizes,
-    updates: impl Fn(Work) -> Option<u32>,
-    mut hook: impl FnMut(ReplayEvent<'_, N>),
-) -> anyhow::Result<(Option<Replay<N>>, Counters)> {
-    let mut rx = LinkRx::new();
-    let mut scan: Box<ScanBuf<{ fw::MAX_BEAMS }>> = Box::default();
-    let mut machine: Option<Replay<N>> = None;
-    let mut configured = false;
-    let mut counters = Counters::default();
-    let mut missing = None;
-    for &b in input {
-        let mut after = None;
-        let mut finish = false;
-        rx.feed(std::slice::from_ref(&b), &mut scan, |step| match step {
-            Step::Config(c) => {
-                if configured {
-                    // A repeat of the settings in use is ignored (the firmware's `configure`).
-                    if !machine.as_ref().is_some_and(|m| m.config == c) {
-                        counters.errors += 1; // ConfigTwice
-                    }
-                    return;
-                }
-                configured = true;
-                match Replay::new(c, sizes) {
-                    Ok(m) => machine = Some(m),
-                    Err(_) => counters.errors += 1, // BadConfig
-                }
-            }
-            Step::Scan {
-                seq,
-                pose,
-                beams,
-                overflow,
-            } => {
-                if overflow > 0 {
-                    counters.beams_overflowed += overflow;
-                    counters.errors += 1;
-                }
-                let Some(m) = machine.as_mut() else {
-                    counters.errors += 1; // NoConfig
-                    return;
-                };
-                let Some(n) = updates(Work::Scan(seq)) else {
-                    missing = Some(Work::Scan(seq));
-                    return;
-                };
-                let (report, ok) = m.scan(seq, &pose, beams, overflow, n);
-                if !ok {
-                    counters.errors += 1;
-                }
-                counters.scans += 1;
-                hook(ReplayEvent::Scan(seq, &report, m));
-                after = Some(seq);
-            }
-            Step::Idle { seq, .. } => {
-                let Some(m) = machine.as_mut() else {
-                    counters.errors += 1; // NoConfig
-                    return;
-                };
-                let Some(n) = updates(Work::Idle(seq)) else {
-                    missing = Some(Work::Idle(seq));
-                    return;
-                };
-                m.idle(n);
-                hook(ReplayEvent::Idle(seq, m));
-            }
-            Step::Finish => finish = true,
-            Step::Error(_) => counters.errors += 1,
-        });
-        if let Some(w) = missing {
-            bail!("the firmware did not report {w:?}");
-        }
-        counters.link = rx.counters();
-        if let (Some(seq), Some(m)) = (after, machine.as_ref()) {
-            hook(ReplayEvent::AfterScan(seq, &counters, m));
-        }
-        if finish {
-            break;
-        }
-    }
-    counters.link = rx.counters();
-    Ok((machine, counters))
-}
-
-/// Compares the firmware's stream with the replay.
+/// Compares the firmware's stream with the host's run of the same application on the same
+/// input: every message equal except the board's timing and stack figures, and the streamed
+/// map equal to the host's engine cell for cell.
 fn compare(input: &[u8], g: &Groups, c: &mut Checker) -> anyhow::Result<()> {
     let hello = g.hello.as_ref().context("no Hello from the firmware")?;
     ensure!(
@@ -850,92 +645,120 @@ fn compare(input: &[u8], g: &Groups, c: &mut Checker) -> anyhow::Result<()> {
             && hello.count_max == 255,
         "the firmware's sizes {hello:?} are not ogm_core::wire::firmware_sizes (rebuild it?)"
     );
-    let sizes = Sizes::of(hello);
     let edge = usize::from(fw::TILE_EDGE);
     let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
-    let scratch = StreamedMap::new(w, h, edge);
-    let (machine, counters) = replay::<u8>(
+    let (stream, state) = replay::<u8, _>(
         input,
-        sizes,
+        sizes_of(hello),
         |w| g.updates(w),
-        |ev| match ev {
-            ReplayEvent::Scan(seq, report, m) => {
-                let Some(fwg) = g.scans.get(&seq) else {
-                    c.fail(format!("scan {seq}: no report from the firmware"));
-                    return;
-                };
-                let mut fr = fwg.report;
-                // Timing is the firmware's own business.
-                (fr.insert_ticks, fr.store_ticks, fr.sampler_ticks) = (0, 0, 0);
-                c.eq(|| format!("scan {seq} report"), &fr, report);
-                for t in &fwg.tiles {
-                    match m.tile(&scratch, t.layer, t.tx, t.ty) {
-                        Ok(mine) => {
-                            c.checks += 1;
-                            if t.data != mine {
-                                let n = t.data.iter().zip(&mine).filter(|(a, b)| a != b).count()
-                                    + t.data.len().abs_diff(mine.len());
-                                c.fail(format!(
-                                    "scan {seq}: tile {:?} ({}, {}) differs in {n} of {} bytes",
-                                    t.layer,
-                                    t.tx,
-                                    t.ty,
-                                    mine.len()
-                                ));
-                            }
-                        }
-                        Err(e) => c.fail(format!("scan {seq}: bad tile: {e}")),
-                    }
-                }
-            }
-            ReplayEvent::AfterScan(seq, counters, m) => {
-                let Some(fwg) = g.scans.get(&seq) else { return };
-                c.eq(
-                    || format!("scan {seq} sampler report"),
-                    &fwg.sampler,
-                    &Some(m.sampler_report()),
-                );
-                c.eq(
-                    || format!("scan {seq} counters"),
-                    &fwg.counters,
-                    &Some(*counters),
-                );
-            }
-            ReplayEvent::Idle(seq, _) => {
-                // The replay sampled exactly the firmware's updates (`g.updates`); the map
-                // after the period is checked with the final one.
-                c.checks += 1;
-                if !g.idles.contains_key(&seq) {
-                    c.fail(format!("idle {seq}: no report from the firmware"));
-                }
-            }
+        |_, _| {},
+        |m, out| {
+            let state = m.map(|m| {
+                (
+                    *m.config(),
+                    m.log_odds().iter().map(|l| l.raw()).collect::<Vec<_>>(),
+                    (0..w * h)
+                        .map(|i| ogm_core::wire::TileSource::count(m, i))
+                        .collect::<Vec<_>>(),
+                    (0..w * h)
+                        .map(|i| ogm_core::wire::TileSource::occupied(m, i))
+                        .collect::<Vec<_>>(),
+                )
+            });
+            (out.to_vec(), state)
         },
     )?;
-    let m = machine.context("the replay never got a valid Config")?;
-    c.eq(|| "configured".into(), &g.configured, &Some(*m.config()));
+    let (config, host_lo, host_counts, host_sample) =
+        state.context("the replay never got a valid Config")?;
+    let mut decoder = StreamDecoder::new();
+    let events: Vec<DeviceEvent> = decoder
+        .push(&stream)
+        .into_iter()
+        .collect::<Result<_, _>>()
+        .map_err(|e| anyhow!("the host's own stream does not decode: {e}"))?;
+    let host = Groups::of(&events);
+    c.eq(|| "configured".into(), &g.configured, &host.configured);
+    c.eq(|| "configured".into(), &g.configured, &Some(config));
+    c.eq(|| "scans".into(), &g.scans.len(), &host.scans.len());
+    c.eq(|| "error reports".into(), &g.errors, &host.errors);
+    let mut seqs: Vec<u32> = g.scans.keys().copied().collect();
+    seqs.sort_unstable();
+    for seq in seqs {
+        let (fwg, hg) = (&g.scans[&seq], host.scans.get(&seq));
+        let Some(hg) = hg else {
+            c.fail(format!("scan {seq}: the host did not map it"));
+            continue;
+        };
+        let mut fr = fwg.report;
+        // Timing is the firmware's own business.
+        (fr.insert_ticks, fr.store_ticks, fr.sampler_ticks) = (0, 0, 0);
+        c.eq(|| format!("scan {seq} report"), &fr, &hg.report);
+        c.eq(
+            || format!("scan {seq} tiles"),
+            &fwg.tiles.len(),
+            &hg.tiles.len(),
+        );
+        for (a, b) in fwg.tiles.iter().zip(&hg.tiles) {
+            c.checks += 1;
+            if a != b {
+                let n = a.data.iter().zip(&b.data).filter(|(x, y)| x != y).count()
+                    + a.data.len().abs_diff(b.data.len());
+                c.fail(format!(
+                    "scan {seq}: tile {:?} ({}, {}) differs from the host's {:?} ({}, {}) in {n} bytes",
+                    a.layer, a.tx, a.ty, b.layer, b.tx, b.ty
+                ));
+            }
+        }
+        c.eq(
+            || format!("scan {seq} sampler report"),
+            &fwg.sampler,
+            &hg.sampler,
+        );
+        c.eq(
+            || format!("scan {seq} counters"),
+            &fwg.counters,
+            &hg.counters,
+        );
+    }
+    for (seq, r) in &g.idles {
+        let host_updates = host.idles.get(seq).map(|r| r.sampler_updates);
+        c.eq(
+            || format!("idle {seq} updates"),
+            &Some(r.sampler_updates),
+            &host_updates,
+        );
+    }
     c.eq(
-        || "scans".into(),
-        &g.scans.len(),
-        &(counters.scans as usize),
+        || "final tiles".into(),
+        &g.final_tiles.len(),
+        &host.final_tiles.len(),
     );
+    if g.final_tiles != host.final_tiles {
+        c.fail("the final tiles differ from the host's".into());
+    }
+    c.checks += g.final_tiles.len() as u64;
     c.eq(
         || "final sampler report".into(),
         &g.final_sampler,
-        &Some(m.sampler_report()),
+        &host.final_sampler,
     );
     c.eq(
         || "final counters".into(),
         &g.final_counters,
-        &Some(counters),
+        &host.final_counters,
     );
-    // The map as streamed, cell for cell.
+    let done = g.done.as_ref().context("no Done from the firmware")?;
+    let host_done = host.done.as_ref().context("no Done from the host")?;
+    c.eq(
+        || "Done (scans, grid FNV, counts FNV)".into(),
+        &(done.scans, done.grid_fnv, done.counts_fnv),
+        &(host_done.scans, host_done.grid_fnv, host_done.counts_fnv),
+    );
+    // The map as streamed, cell for cell, against the host's engine.
     let mut streamed = StreamedMap::new(w, h, edge);
     for t in &g.all_tiles {
         streamed.apply(t)?;
     }
-    let host_lo: Vec<i16> = m.mapper.grid().cells().iter().map(|l| l.raw()).collect();
-    let host_counts: Vec<u8> = (0..w * h).map(|i| m.gibbs.count(i) as u8).collect();
-    let host_sample: Vec<bool> = (0..w * h).map(|i| m.gibbs.occupied(i)).collect();
     for (name, diff) in [
         ("log-odds", first_diff(&streamed.log_odds, &host_lo)),
         (
@@ -953,12 +776,6 @@ fn compare(input: &[u8], g: &Groups, c: &mut Checker) -> anyhow::Result<()> {
             ));
         }
     }
-    let done = g.done.as_ref().context("no Done from the firmware")?;
-    c.eq(
-        || "Done grid FNV".into(),
-        &done.grid_fnv,
-        &ogm_core::wire::grid_fnv(m.mapper.grid().cells()),
-    );
     Ok(())
 }
 
@@ -1329,20 +1146,28 @@ fn noise_report(input: &RunInput, corrupted: &[usize], g: &Groups) -> anyhow::Re
             surviving.extend_from_slice(bytes);
         }
     }
-    let sizes = g.hello.as_ref().map_or(FIRMWARE_SIZES, Sizes::of);
-    let (machine, _) = replay::<u8>(&surviving, sizes, |w| g.updates(w), |_| {})?;
-    let m = machine.context("the surviving packets carry no valid Config")?;
+    let sizes = g.hello.as_ref().map_or(FIRMWARE_SIZES, sizes_of);
     let streamed = streamed_map(g)?;
-    let cells = streamed.log_odds.len();
-    n.surviving_replay_identical = m
-        .mapper
-        .grid()
-        .cells()
-        .iter()
-        .map(|l| l.raw())
-        .eq(streamed.log_odds.iter().copied())
-        && (0..cells).all(|i| m.gibbs.count(i) as u8 == streamed.counts[i])
-        && (0..cells).all(|i| m.gibbs.occupied(i) == streamed.sample[i]);
+    let identical = replay::<u8, _>(
+        &surviving,
+        sizes,
+        |w| g.updates(w),
+        |_, _| {},
+        |m, _| {
+            m.map(|m| {
+                use ogm_core::wire::TileSource;
+                let cells = streamed.log_odds.len();
+                m.log_odds()
+                    .iter()
+                    .map(|l| l.raw())
+                    .eq(streamed.log_odds.iter().copied())
+                    && (0..cells).all(|i| m.count(i) == streamed.counts[i])
+                    && (0..cells).all(|i| m.occupied(i) == streamed.sample[i])
+            })
+        },
+    )?;
+    n.surviving_replay_identical =
+        identical.context("the surviving packets carry no valid Config")?;
     Ok(n)
 }
 
@@ -1694,6 +1519,7 @@ fn accuracy(
                 rays: total_rays.max(1),
                 scans: scans.len().max(1),
                 local: total_rays.clamp(1, 1 << 16),
+                ..FIRMWARE_SIZES
             };
             let (gw, ww, wh) = (usize::from(fw::WIDTH), world.width, world.height);
             let crop = |v: &[f64]| -> Vec<f64> {
@@ -1709,48 +1535,57 @@ fn accuracy(
             };
             let last = scans.len().saturating_sub(1) as u32;
             let every = (scans.len() / 200).max(1) as u32;
-            let mut end_of_scans: Option<(Vec<f64>, Vec<f64>)> = None;
+            let mut end_of_scans: Option<Vec<f64>> = None;
             let mut idle_maps: Vec<Vec<f64>> = Vec::new();
             let mut failure: Option<anyhow::Error> = None;
-            let (b, _) = replay::<u8>(online.input, FIRMWARE_SIZES, get, |ev| {
-                let r = (|| -> anyhow::Result<()> {
-                    match ev {
-                        ReplayEvent::AfterScan(seq, _, m) => {
-                            if seq % every == 0 || seq == last {
-                                let lo: Vec<f64> =
-                                    m.log_odds().iter().map(|l| l.probability()).collect();
-                                acc.anytime.push(AnytimePoint {
-                                    scans: seq + 1,
-                                    online: f1(&m.marginals())?,
-                                    log_odds: f1(&lo)?,
-                                });
+            let configured = replay::<u8, _>(
+                online.input,
+                FIRMWARE_SIZES,
+                get,
+                |fed, m| {
+                    let r = (|| -> anyhow::Result<()> {
+                        match fed {
+                            Fed::Scan(seq) => {
+                                if seq % every == 0 || seq == last {
+                                    let lo: Vec<f64> =
+                                        m.log_odds().iter().map(|l| l.probability()).collect();
+                                    acc.anytime.push(AnytimePoint {
+                                        scans: seq + 1,
+                                        online: f1(&marginals(m))?,
+                                        log_odds: f1(&lo)?,
+                                    });
+                                }
+                                if seq == last {
+                                    end_of_scans = Some(marginals(m));
+                                }
                             }
-                            if seq == last {
-                                end_of_scans = Some((
-                                    m.marginals(),
-                                    m.log_odds().iter().map(|l| l.probability()).collect(),
-                                ));
-                            }
+                            Fed::Idle(_) => idle_maps.push(marginals(m)),
+                            _ => {}
                         }
-                        ReplayEvent::Idle(_, m) => idle_maps.push(m.marginals()),
-                        ReplayEvent::Scan(..) => {}
+                        Ok(())
+                    })();
+                    if let (Err(e), None) = (r, &failure) {
+                        failure = Some(e);
                     }
-                    Ok(())
-                })();
-                if let (Err(e), None) = (r, &failure) {
-                    failure = Some(e);
-                }
-            })?;
+                },
+                |m, _| m.is_some(),
+            )?;
             if let Some(e) = failure {
                 return Err(e);
             }
-            let (u, _) = replay::<u32>(online.input, unbounded, get, |_| {})?;
-            if let (Some(_), Some((online_map, _))) = (b, &end_of_scans) {
+            let unbounded_map = replay::<u32, _>(
+                online.input,
+                unbounded,
+                get,
+                |_, _| {},
+                |m, _| m.map(marginals),
+            )?;
+            if let (true, Some(online_map)) = (configured, &end_of_scans) {
                 score("online_firmware_sizes", &crop(online_map))?;
             }
-            if let Some(u) = u {
+            if let Some(u) = unbounded_map {
                 // Unbounded buffers and u32 estimates, at the end of the run (idle included).
-                score("online_unbounded", &crop(&u.marginals()))?;
+                score("online_unbounded", &crop(&u))?;
             }
             for (secs, m) in online.idle_marks.iter().zip(&idle_maps) {
                 score(&format!("online_idle_{secs}s"), &crop(m))?;

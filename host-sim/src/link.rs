@@ -412,47 +412,39 @@ impl StreamedMap {
         }
     }
 
-    /// The cell indices of tile (tx, ty), row-major within the tile.
-    pub fn tile_cells(&self, tx: u16, ty: u16) -> anyhow::Result<Vec<usize>> {
-        let (x0, y0) = (usize::from(tx) * self.edge, usize::from(ty) * self.edge);
-        ensure!(
-            x0 < self.width && y0 < self.height,
-            "tile ({tx}, {ty}) outside the map"
-        );
-        let (x1, y1) = (
-            (x0 + self.edge).min(self.width),
-            (y0 + self.edge).min(self.height),
-        );
-        Ok((y0..y1)
-            .flat_map(|y| (x0..x1).map(move |x| y * self.width + x))
-            .collect())
+    /// Applies a tile ([`wire::decode_tile`], the stream's one tile codec); returns the cells
+    /// it covered. A tile outside the map or of the wrong size changes nothing.
+    pub fn apply(&mut self, t: &OwnedTile) -> anyhow::Result<wire::TileRect> {
+        let tile = wire::Tile {
+            layer: t.layer,
+            tx: t.tx,
+            ty: t.ty,
+            data: &t.data,
+        };
+        let rect = wire::decode_tile(&tile, self.width, self.height, self.edge, self)
+            .map_err(|e| anyhow!("tile {:?} ({}, {}): {e}", t.layer, t.tx, t.ty))?;
+        self.tiles += 1;
+        Ok(rect)
+    }
+}
+
+impl wire::TileSink for StreamedMap {
+    fn set_log_odds(&mut self, index: usize, raw: i16) {
+        if let Some(c) = self.log_odds.get_mut(index) {
+            *c = raw;
+        }
     }
 
-    /// Applies a tile.
-    pub fn apply(&mut self, t: &OwnedTile) -> anyhow::Result<()> {
-        let cells = self.tile_cells(t.tx, t.ty)?;
-        match t.layer {
-            Layer::LogOdds => {
-                ensure!(t.data.len() == 2 * cells.len(), "log-odds tile size");
-                for (i, c) in cells.iter().enumerate() {
-                    self.log_odds[*c] = i16::from_le_bytes([t.data[2 * i], t.data[2 * i + 1]]);
-                }
-            }
-            Layer::Counts => {
-                ensure!(t.data.len() == cells.len(), "counts tile size");
-                for (c, v) in cells.iter().zip(&t.data) {
-                    self.counts[*c] = *v;
-                }
-            }
-            Layer::Sample => {
-                ensure!(t.data.len() == cells.len().div_ceil(8), "sample tile size");
-                for (i, c) in cells.iter().enumerate() {
-                    self.sample[*c] = t.data[i / 8] & (1 << (i % 8)) != 0;
-                }
-            }
+    fn set_count(&mut self, index: usize, count: u8) {
+        if let Some(c) = self.counts.get_mut(index) {
+            *c = count;
         }
-        self.tiles += 1;
-        Ok(())
+    }
+
+    fn set_occupied(&mut self, index: usize, occupied: bool) {
+        if let Some(c) = self.sample.get_mut(index) {
+            *c = occupied;
+        }
     }
 }
 

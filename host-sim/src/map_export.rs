@@ -234,17 +234,17 @@ fn world_from_stream(path: &Path, a: &ExportArgs) -> anyhow::Result<World> {
         match e {
             DeviceEvent::Configured(c) => config = Some(*c),
             DeviceEvent::Sampler(r) => samples = r.samples,
-            DeviceEvent::Tile(t) => {
-                if map.apply(t).is_err() {
-                    bad_tiles += 1;
-                } else if t.layer == ogm_core::wire::Layer::Counts {
-                    for c in map.tile_cells(t.tx, t.ty).unwrap_or_default() {
+            DeviceEvent::Tile(t) => match map.apply(t) {
+                Err(_) => bad_tiles += 1,
+                Ok(rect) if t.layer == ogm_core::wire::Layer::Counts => {
+                    for c in rect.cells() {
                         if let Some(x) = have_counts.get_mut(c) {
                             *x = true;
                         }
                     }
                 }
-            }
+                Ok(_) => {}
+            },
             _ => {}
         }
     }

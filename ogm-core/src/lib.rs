@@ -9,6 +9,8 @@
 //! * [`mapper`] — online log-odds updates ("traditional OGM"), hits win within a scan;
 //! * [`hal`] — the traits through which scans and poses enter (firmware and simulator alike);
 //! * [`pipeline`] — the loop step both call;
+//! * [`session`] — the engine: mapper, ray store and sampler behind `insert` / `step`;
+//! * [`wire`] — the host link's messages and the map stream's tile codec;
 //! * [`reference`] — f64 reference implementations for tests (feature `reference`).
 //!
 //! ## Panics
@@ -28,6 +30,9 @@
         clippy::indexing_slicing
     )
 )]
+
+#[cfg(feature = "alloc")]
+extern crate alloc;
 
 #[macro_use]
 mod fmt;
@@ -53,6 +58,7 @@ pub mod ray_store;
 pub mod reference;
 pub mod rplidar;
 pub mod sensor_model;
+pub mod session;
 pub mod wire;
 
 pub use angle::Angle;

@@ -71,6 +71,38 @@ pub enum LinkError {
     PointsOutsideScan,
 }
 
+impl LinkError {
+    /// How the device reports it: the [`wire::ErrorCode`] and its `detail`
+    /// ([`wire::LinkFault`] for [`wire::ErrorCode::Link`]).
+    pub fn code(&self) -> (wire::ErrorCode, u32) {
+        use wire::{ErrorCode as E, LinkFault as F};
+        let link = |f: F| (E::Link, f.detail());
+        match *self {
+            LinkError::Ld06(Ld06Error::Crc) => link(F::Ld06Crc),
+            LinkError::Ld06(Ld06Error::Truncated) => link(F::Ld06Truncated),
+            LinkError::Ld06(Ld06Error::BadHeader) => link(F::Ld06Header),
+            LinkError::Frame(_) => link(F::Frame),
+            LinkError::FrameTooLong => link(F::FrameTooLong),
+            LinkError::ScanSequence { seq } => (E::ScanSequence, seq),
+            LinkError::PointsLost { lost, .. } => (E::PointsLost, lost),
+            LinkError::PointsOutsideScan => link(F::PointsOutsideScan),
+        }
+    }
+}
+
+impl core::fmt::Display for LinkError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            LinkError::Ld06(e) => write!(f, "{e}"),
+            LinkError::Frame(e) => write!(f, "host frame: {e}"),
+            LinkError::FrameTooLong => f.write_str("host frame too long"),
+            LinkError::ScanSequence { seq } => write!(f, "scan framing broken at scan {seq}"),
+            LinkError::PointsLost { seq, lost } => write!(f, "scan {seq}: {lost} points lost"),
+            LinkError::PointsOutsideScan => f.write_str("LD06 points outside a scan"),
+        }
+    }
+}
+
 /// Splits one byte stream into LD06 packets and host frames (see the [module docs](self)).
 #[derive(Clone, Debug)]
 pub struct LinkDemux {

@@ -355,6 +355,181 @@ pub struct Tile<'a> {
     pub data: &'a [u8],
 }
 
+/// The cells of one streamed tile: tile (`tx`, `ty`) of a `width × height` map cut into
+/// `edge`-cell squares from its lower-left corner; tiles at the map's right and top edges are
+/// smaller. [`encode_tile`] and [`decode_tile`] are the one codec of [`Tile::data`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TileRect {
+    /// First column.
+    pub x0: usize,
+    /// First row.
+    pub y0: usize,
+    /// Columns.
+    pub w: usize,
+    /// Rows.
+    pub h: usize,
+    /// The map's width (row stride).
+    pub stride: usize,
+    /// The tile edge it was cut with.
+    pub edge: usize,
+}
+
+impl TileRect {
+    /// Tile (`tx`, `ty`); `None` if it lies outside the map or `edge` is 0.
+    pub fn new(width: usize, height: usize, edge: usize, tx: u16, ty: u16) -> Option<Self> {
+        let x0 = usize::from(tx).checked_mul(edge)?;
+        let y0 = usize::from(ty).checked_mul(edge)?;
+        if edge == 0 || x0 >= width || y0 >= height {
+            return None;
+        }
+        Some(TileRect {
+            x0,
+            y0,
+            w: edge.min(width - x0),
+            h: edge.min(height - y0),
+            stride: width,
+            edge,
+        })
+    }
+
+    /// Tile number `t`, row-major over the map's tiles; `None` past the last.
+    pub fn nth(width: usize, height: usize, edge: usize, t: usize) -> Option<Self> {
+        let across = width.checked_div(edge)? + usize::from(width % edge != 0);
+        let (tx, ty) = (t.checked_rem(across)?, t / across);
+        Self::new(
+            width,
+            height,
+            edge,
+            u16::try_from(tx).ok()?,
+            u16::try_from(ty).ok()?,
+        )
+    }
+
+    /// The tile's column and row.
+    pub fn coords(&self) -> (u16, u16) {
+        let e = self.edge.max(1);
+        ((self.x0 / e) as u16, (self.y0 / e) as u16)
+    }
+
+    /// Cells in the tile.
+    pub fn len(&self) -> usize {
+        self.w * self.h
+    }
+
+    /// Whether the tile has no cells (never, for a tile [`TileRect::new`] made).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Bytes of `layer`'s data for this tile.
+    pub fn data_len(&self, layer: Layer) -> usize {
+        match layer {
+            Layer::LogOdds => 2 * self.len(),
+            Layer::Counts => self.len(),
+            Layer::Sample => self.len().div_ceil(8),
+        }
+    }
+
+    /// The map indices of its cells, in the tile's order (row-major from the lower-left).
+    pub fn cells(&self) -> impl Iterator<Item = usize> + '_ {
+        (self.y0..self.y0 + self.h)
+            .flat_map(move |y| (self.x0..self.x0 + self.w).map(move |x| y * self.stride + x))
+    }
+}
+
+/// A map a tile can be cut from (the firmware's [`crate::session::Session`]).
+pub trait TileSource {
+    /// Raw log-odds of cell `index` ([`LogOdds::raw`]).
+    fn log_odds(&self, index: usize) -> i16;
+    /// Marginal count of cell `index`, saturated to a byte.
+    fn count(&self, index: usize) -> u8;
+    /// Whether cell `index` is occupied in the current sample.
+    fn occupied(&self, index: usize) -> bool;
+}
+
+/// A map a tile can be written into (a host's rebuilt map).
+pub trait TileSink {
+    /// Sets the raw log-odds of cell `index`.
+    fn set_log_odds(&mut self, index: usize, raw: i16);
+    /// Sets the marginal count of cell `index`.
+    fn set_count(&mut self, index: usize, count: u8);
+    /// Sets the sample bit of cell `index`.
+    fn set_occupied(&mut self, index: usize, occupied: bool);
+}
+
+/// Encodes `layer` of the cells of `rect` from `src` into `buf` ([`Layer`] says how); returns
+/// the data, or [`WireError::BufferFull`] if `buf` is shorter than [`TileRect::data_len`].
+pub fn encode_tile<'b>(
+    src: &impl TileSource,
+    layer: Layer,
+    rect: &TileRect,
+    buf: &'b mut [u8],
+) -> Result<&'b [u8], WireError> {
+    let out = buf
+        .get_mut(..rect.data_len(layer))
+        .ok_or(WireError::BufferFull)?;
+    match layer {
+        Layer::LogOdds => {
+            for (d, i) in out.chunks_exact_mut(2).zip(rect.cells()) {
+                d.copy_from_slice(&src.log_odds(i).to_le_bytes());
+            }
+        }
+        Layer::Counts => {
+            for (d, i) in out.iter_mut().zip(rect.cells()) {
+                *d = src.count(i);
+            }
+        }
+        Layer::Sample => {
+            out.fill(0);
+            for (k, i) in rect.cells().enumerate() {
+                if src.occupied(i) {
+                    if let Some(d) = out.get_mut(k / 8) {
+                        *d |= 1 << (k % 8);
+                    }
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Writes a received tile's cells into `sink`; [`WireError::Tile`] if the tile lies outside a
+/// `width × height` map cut into `edge`-cell tiles or its data has the wrong length (nothing is
+/// written then).
+pub fn decode_tile(
+    tile: &Tile<'_>,
+    width: usize,
+    height: usize,
+    edge: usize,
+    sink: &mut impl TileSink,
+) -> Result<TileRect, WireError> {
+    let rect = TileRect::new(width, height, edge, tile.tx, tile.ty).ok_or(WireError::Tile)?;
+    if tile.data.len() != rect.data_len(tile.layer) {
+        return Err(WireError::Tile);
+    }
+    match tile.layer {
+        Layer::LogOdds => {
+            for (d, i) in tile.data.chunks_exact(2).zip(rect.cells()) {
+                if let [lo, hi] = *d {
+                    sink.set_log_odds(i, i16::from_le_bytes([lo, hi]));
+                }
+            }
+        }
+        Layer::Counts => {
+            for (&d, i) in tile.data.iter().zip(rect.cells()) {
+                sink.set_count(i, d);
+            }
+        }
+        Layer::Sample => {
+            for (k, i) in rect.cells().enumerate() {
+                let bit = tile.data.get(k / 8).is_some_and(|d| d >> (k % 8) & 1 != 0);
+                sink.set_occupied(i, bit);
+            }
+        }
+    }
+    Ok(rect)
+}
+
 /// Sent once at boot: what this firmware is and its compile-time sizes.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -566,8 +741,7 @@ pub enum ErrorCode {
     NoConfig,
     /// A second `Config`.
     ConfigTwice,
-    /// `Config` rejected (`detail`: 0 geometry, 1 mapper, 2 forward model, 3 store, 4 sampler,
-    /// 5 no room for the state).
+    /// `Config` rejected (`detail`: a [`ConfigFault`]).
     BadConfig,
     /// The mapper rejected a scan.
     Map,
@@ -579,9 +753,80 @@ pub enum ErrorCode {
     ScanOverflow,
     /// The UART reported an error (overrun).
     Uart,
-    /// A bad LD06 packet or host frame (`detail`: 0 LD06 CRC, 1 truncated, 2 bad header,
-    /// 3 frame, 4 frame too long).
+    /// A bad LD06 packet or host frame (`detail`: a [`LinkFault`]).
     Link,
+}
+
+/// Defines a `u32`-numbered detail enum of [`DeviceError::detail`] with its `Display`.
+macro_rules! detail_enum {
+    ($(#[$m:meta])* $name:ident { $($(#[$vm:meta])* $v:ident = $n:literal => $text:literal,)* }) => {
+        $(#[$m])*
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+        #[non_exhaustive]
+        pub enum $name {
+            $($(#[$vm])* $v = $n,)*
+        }
+
+        impl $name {
+            /// Its number in [`DeviceError::detail`].
+            pub const fn detail(self) -> u32 {
+                self as u32
+            }
+
+            /// The variant numbered `detail`, if any.
+            pub const fn from_detail(detail: u32) -> Option<Self> {
+                match detail {
+                    $($n => Some($name::$v),)*
+                    _ => None,
+                }
+            }
+        }
+
+        impl core::fmt::Display for $name {
+            fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+                f.write_str(match self {
+                    $($name::$v => $text,)*
+                })
+            }
+        }
+    };
+}
+
+detail_enum! {
+    /// Which part rejected the settings: the `detail` of [`ErrorCode::BadConfig`].
+    ConfigFault {
+        /// The grid placement (cell size 0, or a grid too large).
+        Geometry = 0 => "grid geometry",
+        /// The mapper's sensor model or buffers.
+        Mapper = 1 => "mapper",
+        /// The forward model (σ, outlier weight, range).
+        ForwardModel = 2 => "forward model",
+        /// The ray store (ranges, buffers).
+        Store = 3 => "ray store",
+        /// The sampler (settings or buffers).
+        Sampler = 4 => "sampler",
+        /// The device has no room left for a mapping state.
+        NoRoom = 5 => "no room for the mapping state",
+    }
+}
+
+detail_enum! {
+    /// What was wrong on the link: the `detail` of [`ErrorCode::Link`].
+    LinkFault {
+        /// An LD06 packet with a bad CRC.
+        Ld06Crc = 0 => "LD06 packet CRC",
+        /// An LD06 packet cut short by the next header.
+        Ld06Truncated = 1 => "LD06 packet truncated",
+        /// An LD06 packet with a bad length byte.
+        Ld06Header = 2 => "LD06 packet header",
+        /// A host frame that failed COBS, CRC, version or decoding.
+        Frame = 3 => "host frame",
+        /// A host frame longer than any valid one.
+        FrameTooLong = 4 => "host frame too long",
+        /// LD06 points outside a `ScanStart` … `ScanEnd` pair.
+        PointsOutsideScan = 5 => "LD06 points outside a scan",
+    }
 }
 
 /// An error report.
@@ -669,6 +914,8 @@ pub enum WireError {
     Version(u8),
     /// postcard could not decode the payload, or bytes were left over.
     Decode,
+    /// A tile outside the map, or with data of the wrong length for its layer.
+    Tile,
 }
 
 impl core::fmt::Display for WireError {
@@ -680,6 +927,7 @@ impl core::fmt::Display for WireError {
             WireError::Crc => f.write_str("CRC-32 mismatch"),
             WireError::Version(v) => write!(f, "schema version {v}, expected {VERSION}"),
             WireError::Decode => f.write_str("postcard decoding failed"),
+            WireError::Tile => f.write_str("tile outside the map or of the wrong size"),
         }
     }
 }

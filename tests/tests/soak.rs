@@ -1,7 +1,7 @@
 //! Soak: long runs with no overflow, no drift of saturated cells and flat memory.
 //!
-//! * **Host** ([`host_soak`]): the firmware's per-scan step exactly as the host replay runs it
-//!   (`host_sim::firmware::Replay`: `pipeline::insert_and_seed`, then sampler steps, with the
+//! * **Host** ([`host_soak`]): the firmware's per-scan step on its engine
+//!   (`ogm_core::session::Session`: `insert` = `pipeline::insert_and_seed`, then `step`, with the
 //!   firmware's buffer sizes and `u8` marginal counts) on the scans of a simulated 12.8 m run,
 //!   cycled. Checks at every cycle: log-odds within the clamp; once warmed up the map at the end
 //!   of a cycle equals the map at the end of the previous one (the same scans again: saturated
@@ -23,9 +23,10 @@ use std::cell::Cell;
 use std::io::Write as _;
 
 use host_sim::firmware::{
-    firmware_world, print_report, run, run_config, FirmwareArgs, Replay, FIRMWARE_SIZES,
+    firmware_world, print_report, run, run_config, FirmwareArgs, FIRMWARE_SIZES,
 };
 use host_sim::sim::{simulate, SimConfig};
+use ogm_core::session::{Owned, Session};
 use ogm_core::wire::Budget;
 use ogm_tests::firmware_available;
 
@@ -100,7 +101,7 @@ fn host_soak(total: usize) -> SoakReport {
         sim.mapper_config.max_range_mm,
     );
     assert_eq!(config.budget, Budget::Fixed { updates: UPDATES });
-    let mut r: Replay<u8> = Replay::new(config, FIRMWARE_SIZES).expect("replay");
+    let mut r = Session::new(config, Owned::<u8>::buffers(&FIRMWARE_SIZES)).expect("session");
     let clamp = config.mapper_config().clamp;
     let warm_up = 20 * cycle;
     let mut previous: Option<Vec<i16>> = None;
@@ -109,9 +110,10 @@ fn host_soak(total: usize) -> SoakReport {
     for k in 0..total {
         let s = &sim.scans[k % cycle];
         let before = allocations();
-        let (_, ok) = r.scan(k as u32, &s.pose, &s.beams, 0, UPDATES);
+        let inserted = r.insert(&s.pose, &s.beams);
+        assert_eq!(r.step(UPDATES), UPDATES);
         allocs += allocations() - before;
-        assert!(ok, "scan {k} rejected");
+        assert!(inserted.is_ok(), "scan {k} rejected");
         if (k + 1) % cycle != 0 {
             continue;
         }

@@ -181,18 +181,12 @@ impl<T, const N: usize> StaticArray<T, N> {
     }
 }
 
-/// Stack size and high-water mark, from cortex-m-rt's `paint-stack` feature: the runtime fills
-/// `[_stack_end, _stack_start)` (from the end of `.bss`/`.uninit` to the top of RAM) with
-/// `0xCCCC_CCCC` before `main`; the lowest word that no longer holds the paint is the deepest
-/// the stack has reached. (A word that happened to be written with exactly the paint value would
-/// under-count by one word; irrelevant in practice.)
-#[derive(Clone, Copy, Debug, defmt::Format)]
-pub struct StackUsage {
-    /// Bytes between the end of static RAM and the top of RAM.
-    pub size: u32,
-    /// Bytes of it used so far (high-water mark).
-    pub used: u32,
-}
+// Stack size and high-water mark (`ogm_firmware::StackUsage`), from cortex-m-rt's `paint-stack`
+// feature: the runtime fills `[_stack_end, _stack_start)` (from the end of `.bss`/`.uninit` to
+// the top of RAM) with `0xCCCC_CCCC` before `main`; the lowest word that no longer holds the
+// paint is the deepest the stack has reached. (A word that happened to be written with exactly
+// the paint value would under-count by one word; irrelevant in practice.)
+pub use ogm_firmware::StackUsage;
 
 extern "C" {
     // Linker-script symbols (cortex-m-rt's link.x); only their addresses are used.
@@ -216,7 +210,7 @@ pub fn repaint_stack() {
     }
 }
 
-/// See [`StackUsage`].
+/// The stack's size and high-water mark (see [`StackUsage`] above).
 pub fn stack_usage() -> StackUsage {
     let lo = core::ptr::addr_of!(_stack_end) as usize;
     let hi = core::ptr::addr_of!(_stack_start) as usize;
