@@ -20,6 +20,15 @@ pub struct Pose {
 }
 
 impl Pose {
+    /// A pose at (`x_mm`, `y_mm`) facing `heading`.
+    pub const fn new(x_mm: i32, y_mm: i32, heading: Angle) -> Self {
+        Pose {
+            x_mm,
+            y_mm,
+            heading,
+        }
+    }
+
     /// The world point (mm, as i64 so nothing overflows) at `range_mm` along the direction
     /// `heading + beam`.
     pub fn beam_end(&self, beam: Angle, range_mm: u32) -> (i64, i64) {

@@ -8,8 +8,7 @@
 //! use ogm_core::{Angle, Beam, Pose, Range};
 //!
 //! let config = RunConfig::robot((-3200, -3200), 6000, 1, Budget::Fixed { updates: 500 });
-//! let sizes = Sizes { width: 128, height: 128, ..Sizes::default() };
-//! let mut session = Session::new(config, Owned::<u8>::buffers(&sizes)).unwrap();
+//! let mut session = Session::new(config, Owned::<u8>::buffers(&Sizes::grid(128, 128))).unwrap();
 //! // A robot at the origin in a round room of radius 2 m: 360 hits.
 //! let beams: Vec<Beam> = (0..360)
 //!     .map(|d| Beam { angle: Angle::from_centidegrees(100 * d), range: Range::Hit(2000) })
@@ -107,6 +106,17 @@ pub struct Sizes {
     pub scans: usize,
     /// Tile-visit ray list capacity.
     pub local: usize,
+}
+
+impl Sizes {
+    /// A `width × height` grid with the reference firmware's ray capacities.
+    pub fn grid(width: u16, height: u16) -> Self {
+        Sizes {
+            width,
+            height,
+            ..Sizes::default()
+        }
+    }
 }
 
 impl Default for Sizes {
