@@ -94,7 +94,8 @@ fn scan_input(seq: u32, pose: Pose, ts: &mut u16) -> Vec<u8> {
     let beams: Vec<Beam> = (0..360u32)
         .map(|d| {
             let angle = Angle::from_centidegrees(100 * d);
-            let t = f64::from(d).to_radians() + f64::from(pose.heading.0) / 65536.0 * 6.283;
+            let t = f64::from(d).to_radians()
+                + f64::from(pose.heading.0) / 65536.0 * std::f64::consts::TAU;
             let (c, s) = (t.cos(), t.sin());
             let wall = |p: i32, dir: f64| {
                 if dir.abs() < 1e-9 {
