@@ -1,6 +1,9 @@
 //! One simulated dataset: a world, a robot exploring it, the synthetic lidar, and the online
-//! fixed-point mapper — all wired through `ogm_core::pipeline::map_next_scan`, the function the
-//! firmware's main loop calls.
+//! fixed-point mapper — wired through `ogm_core::pipeline::map_next_scan` and the `hal` traits
+//! (`RangeSensor`, `PoseSource`) that `ogm_core`'s LD06 and RPLIDAR readers implement. (Today's
+//! firmware receives its scans as LD06 packets framed with poses on the host link and maps them
+//! with the same mapper through `ogm_core::session::Session`; `host-sim firmware` sends it this
+//! module's scans that way.)
 
 use anyhow::{anyhow, ensure, Context};
 use ogm_core::mapper::marks_len;

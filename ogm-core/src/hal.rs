@@ -1,9 +1,11 @@
 //! The "HAL traits": how scans and poses enter the mapper.
 //!
-//! The firmware implements [`RangeSensor`] with its LD06 UART driver and [`PoseSource`] with the
-//! pose frames that arrive on the same link; the host simulator implements both with its synthetic
-//! lidar and known trajectory. Both then drive the very same [`crate::pipeline`] code, so the
-//! simulator exercises the robot's code path.
+//! [`crate::ld06::Ld06Reader`] and [`crate::rplidar::RplidarReader`] implement [`RangeSensor`]
+//! over any `embedded_io::Read` byte source (a UART, a serial port); the host simulator
+//! implements both traits with its synthetic lidar and known trajectory, and `eval-log` with a
+//! replayed laser log. They drive [`crate::pipeline::map_next_scan`]. (The firmware today takes
+//! its scans from [`crate::link::LinkRx`] — LD06 packets framed with a pose on the host link —
+//! into [`crate::session::Session::insert`], the same mapper.)
 
 use crate::angle::Angle;
 use crate::geometry::Pose;

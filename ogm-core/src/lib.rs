@@ -50,6 +50,7 @@ pub mod link;
 pub mod mapper;
 pub mod patch;
 pub mod pipeline;
+pub mod pose_track;
 pub mod prior;
 mod prior_table;
 pub mod ray;
