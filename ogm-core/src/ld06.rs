@@ -106,6 +106,7 @@ pub struct Packet {
 /// What can be wrong with a packet.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum Ld06Error {
     /// `0x54` not followed by `0x2C`.
     BadHeader,
@@ -114,6 +115,8 @@ pub enum Ld06Error {
     /// The CRC did not match and a new header starts inside the packet: it was cut short.
     Truncated,
 }
+
+impl core::error::Error for Ld06Error {}
 
 impl core::fmt::Display for Ld06Error {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
@@ -365,12 +368,24 @@ fn header_inside(b: &[u8]) -> bool {
 /// Errors of [`Ld06Reader`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ReadError<E> {
     /// The byte source failed.
     Io(E),
     /// The byte source ended (`read` returned 0).
     Eof,
 }
+
+impl<E: core::fmt::Debug> core::fmt::Display for ReadError<E> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ReadError::Io(e) => write!(f, "LD06: byte source failed: {e:?}"),
+            ReadError::Eof => f.write_str("LD06: byte source ended"),
+        }
+    }
+}
+
+impl<E: core::fmt::Debug> core::error::Error for ReadError<E> {}
 
 /// A blocking LD06 driver over any [`embedded_io::Read`] (a UART on the robot, a byte slice or a
 /// pipe on the host): implements [`RangeSensor`] by assembling one revolution per scan.
@@ -485,9 +500,16 @@ impl<R: embedded_io::Read> RangeSensor for Ld06Reader<R> {
 /// Why [`encode_scan`] refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum EncodeError {
     /// The number of beams is not a multiple of 12.
     NotMultipleOf12,
+}
+
+impl core::fmt::Display for EncodeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("LD06: a scan needs a multiple of 12 beams")
+    }
 }
 
 /// Packs `beams` into LD06 packets, 12 per packet, in the given order (which should be

@@ -47,6 +47,7 @@ pub enum LinkEvent {
 /// Rejections and framing problems.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum LinkError {
     /// A bad LD06 packet.
     Ld06(Ld06Error),
@@ -89,6 +90,20 @@ impl LinkError {
         }
     }
 }
+
+impl From<Ld06Error> for LinkError {
+    fn from(e: Ld06Error) -> Self {
+        LinkError::Ld06(e)
+    }
+}
+
+impl From<WireError> for LinkError {
+    fn from(e: WireError) -> Self {
+        LinkError::Frame(e)
+    }
+}
+
+impl core::error::Error for LinkError {}
 
 impl core::fmt::Display for LinkError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {

@@ -12,6 +12,7 @@ use crate::sensor_model::InverseModelKind;
 /// Why a pipeline step failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum PipelineError<SE, PE> {
     /// The range sensor failed.
     Sensor(SE),
@@ -19,6 +20,22 @@ pub enum PipelineError<SE, PE> {
     Pose(PE),
     /// The mapper rejected the scan.
     Map(crate::Error),
+}
+
+impl<SE: core::fmt::Display, PE: core::fmt::Display> core::fmt::Display for PipelineError<SE, PE> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            PipelineError::Sensor(e) => write!(f, "range sensor: {e}"),
+            PipelineError::Pose(e) => write!(f, "pose source: {e}"),
+            PipelineError::Map(e) => write!(f, "mapper: {e}"),
+        }
+    }
+}
+
+impl<SE, PE> From<crate::Error> for PipelineError<SE, PE> {
+    fn from(e: crate::Error) -> Self {
+        PipelineError::Map(e)
+    }
 }
 
 /// The outcome of one step.

@@ -224,6 +224,7 @@ pub const fn set_motor_pwm_request(pwm: u16) -> [u8; 6] {
 /// What can be wrong on the wire.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum RplidarError {
     /// Node byte 0: bit 1 (`!S`) is not the inverse of bit 0 (`S`).
     StartFlags,
@@ -232,6 +233,8 @@ pub enum RplidarError {
     /// The stream ended inside a node or a response.
     Truncated,
 }
+
+impl core::error::Error for RplidarError {}
 
 impl core::fmt::Display for RplidarError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
@@ -817,12 +820,24 @@ fn lock_candidate(b: &[u8]) -> Candidate {
 /// Errors of [`RplidarReader`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ReadError<E> {
     /// The byte source failed.
     Io(E),
     /// The byte source ended (`read` returned 0).
     Eof,
 }
+
+impl<E: core::fmt::Debug> core::fmt::Display for ReadError<E> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ReadError::Io(e) => write!(f, "RPLIDAR: byte source failed: {e:?}"),
+            ReadError::Eof => f.write_str("RPLIDAR: byte source ended"),
+        }
+    }
+}
+
+impl<E: core::fmt::Debug> core::error::Error for ReadError<E> {}
 
 /// Nodes one byte can complete (a lock-on window): what may spill over into the next scan.
 const CARRY: usize = LOCK_NODES + 1;
@@ -975,6 +990,7 @@ impl<R: embedded_io::Read> RangeSensor for RplidarReader<R> {
 /// Why an encoder refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum EncodeError {
     /// The output buffer needs this many bytes.
     BufferTooSmall {
@@ -983,6 +999,20 @@ pub enum EncodeError {
     },
     /// A request payload longer than 255 bytes.
     PayloadTooLong,
+}
+
+impl core::fmt::Display for EncodeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            EncodeError::BufferTooSmall { needed } => {
+                write!(
+                    f,
+                    "RPLIDAR: output buffer too small ({needed} bytes needed)"
+                )
+            }
+            EncodeError::PayloadTooLong => f.write_str("RPLIDAR: request payload over 255 bytes"),
+        }
+    }
 }
 
 /// Bytes [`encode_scan`] writes for `beams` beams, with or without the descriptor (saturating).

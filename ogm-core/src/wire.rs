@@ -901,6 +901,7 @@ pub struct IdleReport {
 /// Framing errors.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum WireError {
     /// The output buffer is too small.
     BufferFull,
@@ -917,6 +918,8 @@ pub enum WireError {
     /// A tile outside the map, or with data of the wrong length for its layer.
     Tile,
 }
+
+impl core::error::Error for WireError {}
 
 impl core::fmt::Display for WireError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
