@@ -1143,10 +1143,21 @@ pub fn run(args: &ListenArgs, ctl: Arc<Control>) -> anyhow::Result<ListenStats> 
     );
     let source = SendSource::of(args)?;
     let is_file = std::fs::metadata(&port_path).is_ok_and(|m| m.is_file());
-    if is_file && !matches!(source, SendSource::Nothing) {
-        bail!(
+    if is_file {
+        ensure!(
+            matches!(source, SendSource::Nothing),
             "{}: a file, not a device: nothing can be sent to it",
             port_path.display()
+        );
+        // A capture must be one: checked before anything is written.
+        let bytes = std::fs::read(&port_path)
+            .with_context(|| format!("{}: cannot read", port_path.display()))?;
+        ensure!(!bytes.is_empty(), "{}: file is empty", port_path.display());
+        ensure!(
+            StreamDecoder::new().push(&bytes).iter().any(Result::is_ok),
+            "{}: wrong format: not a map stream (no valid frame in {} bytes)",
+            port_path.display(),
+            bytes.len()
         );
     }
     std::fs::create_dir_all(&args.out)
@@ -1809,6 +1820,38 @@ mod tests {
         );
         let e = run(&ListenArgs::new(dir.path(), &out), Control::new()).unwrap_err();
         assert!(format!("{e:#}").contains("is a directory"), "{e:#}");
+        // Empty, truncated and wrong-format inputs: one line naming the file.
+        let f = dir.path().join("f");
+        let out2 = dir.path().join("out2");
+        let err = |a: &ListenArgs| format!("{:#}", run(a, Control::new()).unwrap_err());
+        let fp = f.display().to_string();
+        std::fs::write(&f, b"").unwrap();
+        assert_eq!(
+            err(&ListenArgs::new(&f, &out2)),
+            format!("{fp}: file is empty")
+        );
+        std::fs::write(&f, b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR").unwrap();
+        assert!(err(&ListenArgs::new(&f, &out2))
+            .starts_with(&format!("{fp}: wrong format: not a map stream")));
+        assert!(!out2.exists(), "nothing written for a bad capture");
+        let dev = ListenArgs::new("/dev/null", &out2);
+        assert!(err(&dev).starts_with("/dev/null: cannot open as a serial port"));
+        for (content, why) in [
+            (&b""[..], "no message to send"),
+            (&b"{\"ScanEnd\":{\"seq\":1,\"poi"[..], "1: not JSON"),
+            (&b"\xff\xfe\x00binary"[..], "not UTF-8"),
+        ] {
+            std::fs::write(&f, content).unwrap();
+            let mut a = ListenArgs::new("/dev/null", &out2);
+            a.send = Some(f.clone());
+            let e = err(&a);
+            assert!(e.starts_with(&fp) && e.contains(why), "{e}");
+            let mut a = ListenArgs::new("/dev/null", &out2);
+            a.send_raw = Some(f.clone());
+            if content.is_empty() {
+                assert_eq!(err(&a), format!("{fp}: file is empty"));
+            }
+        }
     }
 
     #[test]
