@@ -1141,6 +1141,7 @@ pub fn run(args: &ListenArgs, ctl: Arc<Control>) -> anyhow::Result<ListenStats> 
         args.hello_wait.is_finite() && args.hello_wait >= 0.0,
         "--hello-wait must be 0 or more seconds"
     );
+    ensure!(args.baud > 0, "--baud must be positive");
     let source = SendSource::of(args)?;
     let is_file = std::fs::metadata(&port_path).is_ok_and(|m| m.is_file());
     if is_file {
@@ -1160,8 +1161,6 @@ pub fn run(args: &ListenArgs, ctl: Arc<Control>) -> anyhow::Result<ListenStats> 
             bytes.len()
         );
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("{}: cannot create directory", args.out.display()))?;
     let capture = args.out.join(CAPTURE_FILE);
     if is_file && std::fs::canonicalize(&port_path).ok() == std::fs::canonicalize(&capture).ok() {
         bail!(
@@ -1179,6 +1178,8 @@ pub fn run(args: &ListenArgs, ctl: Arc<Control>) -> anyhow::Result<ListenStats> 
     } else {
         Source::Serial(open_port(&port_path, args.baud, timeout)?)
     });
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("{}: cannot create directory", args.out.display()))?;
     let mut l = Listener::with_capture(&capture, args.fresh)?;
     let mut con = Console {
         quiet: args.quiet,
@@ -1273,7 +1274,6 @@ pub fn run(args: &ListenArgs, ctl: Arc<Control>) -> anyhow::Result<ListenStats> 
     Ok(l.stats().clone())
 }
 
-#[allow(clippy::too_many_arguments)]
 fn read_loop(
     args: &ListenArgs,
     port_path: &Path,
