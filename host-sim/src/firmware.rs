@@ -529,6 +529,39 @@ fn replay<N: Count, R>(
     Ok(end(app.session(), &out))
 }
 
+/// The map the firmware's application ends with on `input` (its `Config`, scans, idle periods),
+/// with the sampler work the firmware reported in `events` (its decoded stream, which must
+/// hold its `Hello`): the host replay as a [`StreamedMap`], and its final sampler report.
+pub fn replay_map(
+    input: &[u8],
+    events: &[DeviceEvent],
+) -> anyhow::Result<(StreamedMap, SamplerReport)> {
+    use ogm_core::wire::TileSource;
+    let g = Groups::of(events);
+    let hello = g
+        .hello
+        .as_ref()
+        .context("no Hello in the firmware's stream")?;
+    let (w, h) = (usize::from(hello.width), usize::from(hello.height));
+    let edge = usize::from(hello.tile_edge);
+    let state = replay::<u8, _>(
+        input,
+        sizes_of(hello),
+        |work| g.updates(work),
+        |_, _| {},
+        |m, _| {
+            m.map(|m| {
+                let mut map = StreamedMap::new(w, h, edge);
+                map.log_odds = m.log_odds().iter().map(|l| l.raw()).collect();
+                map.counts = (0..w * h).map(|i| m.count(i)).collect();
+                map.sample = (0..w * h).map(|i| m.occupied(i)).collect();
+                (map, m.sampler_report())
+            })
+        },
+    )?;
+    state.context("the input carries no valid Config")
+}
+
 /// The firmware's messages grouped by scan.
 #[derive(Default)]
 struct Groups {

@@ -13,6 +13,7 @@ pub mod explore;
 pub mod firmware;
 pub mod lidar;
 pub mod link;
+pub mod listen;
 pub mod map_export;
 pub mod metrics;
 pub mod noise;

@@ -104,6 +104,10 @@ enum Commands {
     /// Run the firmware in QEMU on a simulated run (LD06 bytes + pose frames in, map stream out)
     /// and check its map against ogm-core on the host, cell for cell.
     Firmware(host_sim::firmware::FirmwareArgs),
+    /// Watch a robot over its serial link: decode the live map stream, keep the map, show the
+    /// link counters, save PNG + ROS map_server PGM/YAML periodically and on Ctrl-C, send host
+    /// messages, survive unplug/replug (docs/listen.md).
+    Listen(host_sim::listen::ListenArgs),
     /// Statistics of the compiled patch prior next to the paper's.
     PriorStats {
         /// JSON instead of a table.
@@ -212,6 +216,7 @@ fn main() -> ExitCode {
         Commands::ExactOneD { out, seed } => host_sim::baselines::fig2::run(&out, seed),
         Commands::PriorStats { json } => host_sim::prior::prior_stats_cmd(json),
         Commands::Firmware(args) => host_sim::firmware::cli(&args),
+        Commands::Listen(args) => host_sim::listen::cli(&args),
         Commands::BenchInsert(args) => host_sim::bench_insert::cli(&args),
     };
     match result {

@@ -31,6 +31,7 @@ use crate::eval_log::{
     benchmark_truth, map_scans, parse_methods, run_log_method, setup_log, Experiment, LogMapArgs,
     MethodsConfig, BENCHMARK_THRESHOLD,
 };
+use crate::link::{HelloInfo, StreamedMap};
 use crate::render::SIDE_BY_SIDE_GAP_PX;
 use crate::sim::probabilities;
 use crate::world::load::{DEFAULT_FREE_THRESH, DEFAULT_OCCUPIED_THRESH};
@@ -200,7 +201,7 @@ pub fn run(a: &ExportArgs) -> anyhow::Result<()> {
 
 /// The map a captured stream carries (see the [module docs](self)).
 fn world_from_stream(path: &Path, a: &ExportArgs) -> anyhow::Result<World> {
-    use crate::link::{decode_file, DeviceEvent, StreamedMap};
+    use crate::link::{decode_file, DeviceEvent};
     let marginals = match a.layer.as_str() {
         "marginals" => true,
         "log-odds" => false,
@@ -281,26 +282,17 @@ fn world_from_stream(path: &Path, a: &ExportArgs) -> anyhow::Result<World> {
         "{}: cell size must be positive",
         path.display()
     );
-    // Marginal counts are probabilities × count_max under the averaging estimators, and sample
-    // counts out of `samples` under the paper's.
-    let counts_of_one = match config.map(|c| c.estimator) {
-        Some(ogm_core::gibbs::Estimator::Counts) => samples,
-        _ => hello.count_max,
+    let layer = if marginals {
+        MapLayer::Marginals
+    } else {
+        MapLayer::LogOdds
     };
-    let probs: Vec<f64> = (0..w * h)
-        .map(|i| {
-            let l = map.log_odds.get(i).copied().unwrap_or(0);
-            if l == 0 {
-                return 0.5;
-            }
-            if marginals && have_counts.get(i) == Some(&true) {
-                let c = map.counts.get(i).copied().unwrap_or(0);
-                (f64::from(c) / f64::from(counts_of_one.max(1))).min(1.0)
-            } else {
-                ogm_core::LogOdds(l).probability()
-            }
-        })
-        .collect();
+    let probs = stream_probabilities(
+        &map,
+        &have_counts,
+        counts_of_one(config.as_ref(), Some(&hello), samples),
+        layer,
+    );
     println!(
         "{}: {} tiles applied, {}x{} cells, layer {}",
         path.display(),
@@ -367,4 +359,53 @@ fn world_from_log(log: &Path, a: &ExportArgs) -> anyhow::Result<World> {
         a.occupied_thresh,
         a.free_thresh,
     ))
+}
+
+/// Which map to render.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MapLayer {
+    /// The sampler's marginals (cells whose marginal tile has not arrived take their log-odds
+    /// probability).
+    Marginals,
+    /// The log-odds map.
+    LogOdds,
+}
+
+/// Per-cell probabilities of a streamed map, as `host-sim export --stream` computes them:
+/// log-odds 0 (never measured) is 0.5 (unknown) in both layers; with [`MapLayer::Marginals`] a
+/// cell whose marginal tile arrived (`have_counts`) is `count / counts_of_one` (capped at 1),
+/// any other its log-odds probability.
+pub fn stream_probabilities(
+    map: &StreamedMap,
+    have_counts: &[bool],
+    counts_of_one: u32,
+    layer: MapLayer,
+) -> Vec<f64> {
+    (0..map.width * map.height)
+        .map(|i| {
+            let l = map.log_odds.get(i).copied().unwrap_or(0);
+            if l == 0 {
+                return 0.5;
+            }
+            if layer == MapLayer::Marginals && have_counts.get(i) == Some(&true) {
+                let c = map.counts.get(i).copied().unwrap_or(0);
+                (f64::from(c) / f64::from(counts_of_one.max(1))).min(1.0)
+            } else {
+                ogm_core::LogOdds(l).probability()
+            }
+        })
+        .collect()
+}
+
+/// The count that means p = 1: the last `Sampler` report's `samples` under the paper's
+/// estimator (`Estimator::Counts`), else the robot's `count_max` (255 without a `Hello`).
+pub fn counts_of_one(
+    config: Option<&ogm_core::wire::RunConfig>,
+    hello: Option<&HelloInfo>,
+    samples: u32,
+) -> u32 {
+    match config.map(|c| c.estimator) {
+        Some(ogm_core::gibbs::Estimator::Counts) => samples,
+        _ => hello.map_or(255, |h| h.count_max),
+    }
 }
