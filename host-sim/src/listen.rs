@@ -857,7 +857,9 @@ pub fn open_port(
 ) -> anyhow::Result<Box<dyn serialport::SerialPort>> {
     let name = path.display().to_string();
     match std::fs::metadata(path) {
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!("{name}: no such device"),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            bail!("{name}: no such file or device")
+        }
         Err(e) => bail!("{name}: {e}"),
         Ok(m) if m.is_dir() => bail!("{name}: is a directory, not a serial device"),
         Ok(_) => {}
@@ -870,7 +872,7 @@ pub fn open_port(
         use serialport::ErrorKind as K;
         match e.kind() {
             K::NoDevice => format!("{name}: busy or gone ({e})"),
-            K::Io(std::io::ErrorKind::NotFound) => format!("{name}: no such device"),
+            K::Io(std::io::ErrorKind::NotFound) => format!("{name}: no such file or device"),
             K::Io(std::io::ErrorKind::PermissionDenied) => format!(
                 "{name}: permission denied (is your user in the device's group, e.g. dialout?)"
             ),
@@ -1764,7 +1766,10 @@ mod tests {
         .unwrap_err();
         assert_eq!(
             format!("{e:#}"),
-            format!("{}: no such device", dir.path().join("nope").display())
+            format!(
+                "{}: no such file or device",
+                dir.path().join("nope").display()
+            )
         );
         let mut a = ListenArgs::new(&input, &out);
         a.send = Some(dir.path().join("missing.jsonl"));
