@@ -470,12 +470,36 @@ impl<F: Fn(Work) -> Option<u32>> Platform for HostPlatform<F> {
     }
 }
 
-/// The firmware application's memory on the host.
-struct HostMemory<N: Count> {
+/// The firmware application's memory on the host, as a board places it in statics.
+pub struct HostMemory<N: Count> {
     session: Option<ReplaySession<N>>,
     scan: ScanBuf<MAX_BEAMS>,
     tx: [u8; ogm_core::wire::MAX_DEVICE_FRAME],
     tile: [u8; ogm_core::wire::MAX_TILE_BYTES],
+}
+
+impl<N: Count> HostMemory<N> {
+    /// Empty memory (boxed: the scan buffer is ~5.5 KiB).
+    pub fn new() -> Box<Self> {
+        Box::new(HostMemory {
+            session: None,
+            scan: ScanBuf::new(),
+            tx: [0; ogm_core::wire::MAX_DEVICE_FRAME],
+            tile: [0; ogm_core::wire::MAX_TILE_BYTES],
+        })
+    }
+
+    /// The firmware's application over this memory and engine buffers of `sizes`, not yet
+    /// configured.
+    pub fn app(&mut self, sizes: &Sizes) -> App<'_, Owned<N>> {
+        App::new(Memory {
+            buffers: Owned::<N>::buffers(sizes),
+            session: &mut self.session,
+            scan: &mut self.scan,
+            tx: &mut self.tx,
+            tile: &mut self.tile,
+        })
+    }
 }
 
 /// Runs the robot's input through **the firmware's own application** (`ogm_firmware::App`, the
@@ -490,25 +514,8 @@ fn replay<N: Count, R>(
     mut hook: impl FnMut(Fed, &ReplaySession<N>),
     end: impl FnOnce(Option<&ReplaySession<N>>, &[u8]) -> R,
 ) -> anyhow::Result<R> {
-    let mut memory = Box::new(HostMemory::<N> {
-        session: None,
-        scan: ScanBuf::new(),
-        tx: [0; ogm_core::wire::MAX_DEVICE_FRAME],
-        tile: [0; ogm_core::wire::MAX_TILE_BYTES],
-    });
-    let HostMemory {
-        session,
-        scan,
-        tx,
-        tile,
-    } = &mut *memory;
-    let mut app = App::new(Memory {
-        buffers: Owned::<N>::buffers(&sizes),
-        session,
-        scan,
-        tx,
-        tile,
-    });
+    let mut memory = HostMemory::<N>::new();
+    let mut app = memory.app(&sizes);
     let mut platform = HostPlatform {
         updates,
         missing: None,

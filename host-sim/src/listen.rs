@@ -257,6 +257,16 @@ impl fmt::Display for Notice {
 
 pub use crate::map_export::{counts_of_one, stream_probabilities, MapLayer};
 
+/// An I/O error that only means "nothing yet, try again" on a serial port.
+fn transient(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::TimedOut
+            | std::io::ErrorKind::WouldBlock
+            | std::io::ErrorKind::Interrupted
+    )
+}
+
 /// The listener's core: bytes in (any chunking), map and counters out. No I/O but the capture.
 pub struct Listener {
     decoder: StreamDecoder,
@@ -1017,13 +1027,7 @@ fn write_item(
         match port.write(&item[off..]) {
             Ok(0) => return Err(std::io::ErrorKind::WriteZero.into()),
             Ok(n) => off += n,
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::TimedOut
-                        | std::io::ErrorKind::WouldBlock
-                        | std::io::ErrorKind::Interrupted
-                ) => {}
+            Err(e) if transient(&e) => {}
             Err(e) => return Err(e),
         }
     }
@@ -1339,13 +1343,7 @@ fn read_loop(
                 }
                 ctl.publish(l);
             }
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::TimedOut
-                        | std::io::ErrorKind::WouldBlock
-                        | std::io::ErrorKind::Interrupted
-                ) => {}
+            Err(e) if transient(&e) => {}
             Err(e) => {
                 if matches!(s, Source::File(_)) {
                     bail!("{name}: read error: {e}");

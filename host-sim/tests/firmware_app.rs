@@ -2,15 +2,15 @@
 //! the host: its protocol behaviour without QEMU — settings, errors and their documented
 //! details, and a run whose stream rebuilds exactly the engine's map.
 
+use host_sim::firmware::HostMemory;
 use host_sim::link::{host_frame, scan_packets, DeviceEvent, StreamDecoder, StreamedMap};
 use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::wire::{
     self, firmware_sizes as fw, Budget, ConfigFault, ErrorCode, HostMsg, LinkFault, RunConfig,
-    TileSource, MAX_DEVICE_FRAME, MAX_TILE_BYTES,
+    TileSource,
 };
-use ogm_core::{Angle, Beam, Pose, Range, ScanBuf};
-use ogm_firmware::app::MAX_BEAMS;
-use ogm_firmware::{App, Fed, Memory, Platform, Work};
+use ogm_core::{Angle, Beam, Pose, Range};
+use ogm_firmware::{Fed, Platform, Work};
 
 /// No clock; a fixed number of sampler updates per scan and idle period.
 struct Fixed(u32);
@@ -28,14 +28,6 @@ impl Platform for Fixed {
     }
 }
 
-/// The application's memory, as a board would place it.
-struct Mem {
-    session: Option<Session<Owned<u8>>>,
-    scan: ScanBuf<MAX_BEAMS>,
-    tx: [u8; MAX_DEVICE_FRAME],
-    tile: [u8; MAX_TILE_BYTES],
-}
-
 /// Feeds `input` to a fresh application (sizes: `sizes`); returns what it streamed (decoded),
 /// the last [`Fed`], and `inspect`'s view of the final engine.
 fn run<R>(
@@ -43,25 +35,8 @@ fn run<R>(
     input: &[u8],
     inspect: impl FnOnce(Option<&Session<Owned<u8>>>) -> R,
 ) -> (Vec<DeviceEvent>, Fed, R) {
-    let mut mem = Box::new(Mem {
-        session: None,
-        scan: ScanBuf::new(),
-        tx: [0; MAX_DEVICE_FRAME],
-        tile: [0; MAX_TILE_BYTES],
-    });
-    let Mem {
-        session,
-        scan,
-        tx,
-        tile,
-    } = &mut *mem;
-    let mut app = App::new(Memory {
-        buffers: Owned::<u8>::buffers(&sizes),
-        session,
-        scan,
-        tx,
-        tile,
-    });
+    let mut mem = HostMemory::<u8>::new();
+    let mut app = mem.app(&sizes);
     let (mut out, mut platform) = (Vec::new(), Fixed(200));
     app.hello(&mut out, &platform);
     let fed = app.feed(input, &mut out, &mut platform);

@@ -30,6 +30,29 @@ pub struct Beam {
     pub range: Range,
 }
 
+/// Errors of a [`RangeSensor`] reading a byte source ([`crate::ld06::Ld06Reader`],
+/// [`crate::rplidar::RplidarReader`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum ReadError<E> {
+    /// The byte source failed.
+    Io(E),
+    /// The byte source ended (`read` returned 0).
+    Eof,
+}
+
+impl<E: core::fmt::Debug> core::fmt::Display for ReadError<E> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ReadError::Io(e) => write!(f, "lidar byte source failed: {e:?}"),
+            ReadError::Eof => f.write_str("lidar byte source ended"),
+        }
+    }
+}
+
+impl<E: core::fmt::Debug> core::error::Error for ReadError<E> {}
+
 /// A bounded buffer for one scan, filled by a [`RangeSensor`]. Beams beyond the capacity `N`
 /// are dropped and counted, never written out of bounds.
 #[derive(Clone, Debug, Default)]

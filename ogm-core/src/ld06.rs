@@ -365,27 +365,7 @@ fn header_inside(b: &[u8]) -> bool {
     b.windows(2).skip(1).any(|w| matches!(w, [HEADER, VER_LEN]))
 }
 
-/// Errors of [`Ld06Reader`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-#[non_exhaustive]
-pub enum ReadError<E> {
-    /// The byte source failed.
-    Io(E),
-    /// The byte source ended (`read` returned 0).
-    Eof,
-}
-
-impl<E: core::fmt::Debug> core::fmt::Display for ReadError<E> {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self {
-            ReadError::Io(e) => write!(f, "LD06: byte source failed: {e:?}"),
-            ReadError::Eof => f.write_str("LD06: byte source ended"),
-        }
-    }
-}
-
-impl<E: core::fmt::Debug> core::error::Error for ReadError<E> {}
+pub use crate::hal::ReadError;
 
 /// A blocking LD06 driver over any [`embedded_io::Read`] (a UART on the robot, a byte slice or a
 /// pipe on the host): implements [`RangeSensor`] by assembling one revolution per scan.

@@ -817,27 +817,7 @@ fn lock_candidate(b: &[u8]) -> Candidate {
     Candidate::Lock
 }
 
-/// Errors of [`RplidarReader`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-#[non_exhaustive]
-pub enum ReadError<E> {
-    /// The byte source failed.
-    Io(E),
-    /// The byte source ended (`read` returned 0).
-    Eof,
-}
-
-impl<E: core::fmt::Debug> core::fmt::Display for ReadError<E> {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self {
-            ReadError::Io(e) => write!(f, "RPLIDAR: byte source failed: {e:?}"),
-            ReadError::Eof => f.write_str("RPLIDAR: byte source ended"),
-        }
-    }
-}
-
-impl<E: core::fmt::Debug> core::error::Error for ReadError<E> {}
+pub use crate::hal::ReadError;
 
 /// Nodes one byte can complete (a lock-on window): what may spill over into the next scan.
 const CARRY: usize = LOCK_NODES + 1;
