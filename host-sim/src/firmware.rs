@@ -150,6 +150,9 @@ pub struct SamplerArgs {
     /// Relative scale of free evidence, Q8.
     #[arg(long)]
     pub evidence_free: Option<u16>,
+    /// Scale of the mapper's free update, Q8, 1..=256 (256 = Hähnel's textbook model).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=256))]
+    pub free_update: Option<u16>,
     /// Offer the evidence's own configuration as a candidate (true/false).
     #[arg(long)]
     pub data_candidate: Option<bool>,
@@ -173,6 +176,7 @@ impl SamplerArgs {
             data: self.data.unwrap_or(config.data),
             evidence_gain_q8: self.evidence_gain.unwrap_or(config.evidence_gain_q8),
             evidence_free_q8: self.evidence_free.unwrap_or(config.evidence_free_q8),
+            free_update_q8: self.free_update.unwrap_or(config.free_update_q8),
             data_candidate: self.data_candidate.unwrap_or(config.data_candidate),
             estimator: self.estimator.unwrap_or(config.estimator),
             hot_share: self.hot_share.unwrap_or(config.hot_share),
@@ -376,8 +380,10 @@ pub struct Accuracy {
     pub runs: u32,
     /// Scans per world.
     pub scans: Vec<usize>,
-    /// All cells with known truth: `traditional`, `offline_firmware_sizes`,
-    /// `offline_unbounded` (and `online_*` after a QEMU run).
+    /// All cells with known truth: `traditional` (Hähnel's textbook log-odds map),
+    /// `traditional_noise_matched` (the robot's own log-odds map, when its free update is
+    /// scaled), `offline_firmware_sizes`, `offline_unbounded` (and `online_*` after a QEMU
+    /// run).
     pub methods: BTreeMap<String, Summary>,
     /// Cells within 10 cells of a mapped cell.
     pub methods_near_mapped: BTreeMap<String, Summary>,
@@ -1494,6 +1500,7 @@ fn accuracy(
         data: config.data,
         evidence_gain_q8: config.evidence_gain_q8,
         evidence_free_q8: config.evidence_free_q8,
+        free_update_q8: config.free_update_q8,
         data_candidate: config.data_candidate,
         estimator: config.estimator,
         hot_share: config.hot_share,
@@ -1527,6 +1534,18 @@ fn accuracy(
         let seed = args.seed + u64::from(run);
         let trad: Vec<f64> = sim.map.iter().map(|l| l.probability()).collect();
         score("traditional", &trad)?;
+        // The robot's own log-odds map (its mapper's free update matched to the noise): the
+        // sampler is measured against both.
+        if config.free_update_q8 != 256 {
+            let own = crate::sampling::evidence_map(
+                sim.geometry,
+                &sim.mapper_config,
+                scans,
+                config.free_update_q8,
+            )?;
+            let own: Vec<f64> = own.iter().map(|l| l.probability()).collect();
+            score("traditional_noise_matched", &own)?;
+        }
         for (name, cfg) in [
             ("offline_firmware_sizes", &fw_cfg),
             ("offline_unbounded", &host_cfg),

@@ -69,7 +69,7 @@ impl Variant {
     }
 
     /// `cfg` with this variant's data term and estimator: the robot's (`RunConfig::robot`,
-    /// free evidence scaled to `cfg.sigma_cells`) for [`Variant::L9Border`] and
+    /// free evidence and the evidence map's free update matched to `cfg.sigma_cells`) for [`Variant::L9Border`] and
     /// [`Variant::L9BorderHybrid`], the paper's (rays, sample counts) for the others.
     pub fn configure(self, cfg: &SamplingConfig) -> SamplingConfig {
         match self {
@@ -87,7 +87,8 @@ impl Variant {
                         DataTerm::Hybrid
                     },
                     evidence_gain_q8: robot.evidence_gain_q8,
-                    evidence_free_q8: ogm_core::gibbs::free_evidence_q8(cfg.sigma_cells),
+                    evidence_free_q8: ogm_core::gibbs::noise_matched_free_q8(cfg.sigma_cells),
+                    free_update_q8: ogm_core::gibbs::noise_matched_free_q8(cfg.sigma_cells),
                     data_candidate: robot.data_candidate,
                     estimator: robot.estimator,
                     hot_share: robot.hot_share,
@@ -149,6 +150,10 @@ pub struct SamplingConfig {
     pub evidence_gain_q8: u16,
     /// Relative scale of free evidence, Q8.
     pub evidence_free_q8: u16,
+    /// Scale of the free update of the map the evidence term reads, Q8 (256: the dataset's
+    /// own log-odds map; otherwise the scans are mapped again with the scaled model, as the
+    /// robot's mapper does).
+    pub free_update_q8: u16,
     /// Offer the evidence's configuration as a candidate.
     pub data_candidate: bool,
     /// Marginal estimator.
@@ -174,6 +179,7 @@ impl Default for SamplingConfig {
             data: DataTerm::Rays,
             evidence_gain_q8: 256,
             evidence_free_q8: 256,
+            free_update_q8: 256,
             data_candidate: false,
             estimator: Estimator::Counts,
             hot_share: 0,
@@ -271,6 +277,13 @@ impl Prepared {
         cfg: &SamplingConfig,
         seed: u64,
     ) -> anyhow::Result<Prepared> {
+        let remapped;
+        let map = if cfg.free_update_q8 != 256 && cfg.data != DataTerm::Rays {
+            remapped = evidence_map(geometry, mapper, scans, cfg.free_update_q8)?;
+            &remapped[..]
+        } else {
+            map
+        };
         let inner: Box<dyn Sweeper> = match variant {
             Variant::L1 => {
                 let p = ogm_core::prior::occupancy_prior().p_occupied();
@@ -312,6 +325,29 @@ impl Prepared {
     pub fn store_stats(&self) -> StoreStats {
         self.inner.store_stats()
     }
+}
+
+/// The scans mapped again with `mapper`'s model, its free update scaled by `free_update_q8`:
+/// the log-odds map the robot's mapper keeps (`RunConfig::mapper_config`).
+pub fn evidence_map(
+    geometry: GridGeometry,
+    mapper: &MapperConfig,
+    scans: &[ScanRecord],
+    free_update_q8: u16,
+) -> anyhow::Result<Vec<LogOdds>> {
+    let config = MapperConfig {
+        model: mapper
+            .model
+            .with_free_scale(free_update_q8)
+            .map_err(|e| anyhow!("free update scale {free_update_q8}: {e}"))?,
+        ..*mapper
+    };
+    let mut m = crate::sim::new_mapper(geometry, config)?;
+    for s in scans {
+        m.insert_scan(&s.pose, &s.beams)
+            .map_err(|e| anyhow!("mapping: {e}"))?;
+    }
+    Ok(m.grid().cells().to_vec())
 }
 
 fn session<P: PatchPrior + 'static>(

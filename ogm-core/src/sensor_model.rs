@@ -102,6 +102,30 @@ impl InverseSensorModel {
         })
     }
 
+    /// This model with its free update scaled by `q8 / 256` (1 ≤ `q8` ≤ 256; otherwise
+    /// [`Error::InvalidModel`]): the inverse model matched to a noisy range sensor, whose
+    /// beams pass a wall's face cell more often than they end in it
+    /// ([`crate::gibbs::noise_matched_free_q8`]). 256 leaves the model as it is.
+    pub fn with_free_scale(self, q8: u16) -> Result<Self> {
+        if q8 == 0 || q8 > 256 {
+            return Err(Error::InvalidModel);
+        }
+        if q8 == 256 {
+            return Ok(self);
+        }
+        let nominal_free = self.nominal_free * f64::from(q8) / 256.0;
+        let free = LogOdds::from_nats(nominal_free)?;
+        // A scale of at least 1/256 keeps a free increment of at least 4 LSB away from zero.
+        if free.0 >= 0 {
+            return Err(Error::InvalidModel);
+        }
+        Ok(InverseSensorModel {
+            free,
+            nominal_free,
+            ..self
+        })
+    }
+
     /// The update geometry.
     pub const fn kind(&self) -> InverseModelKind {
         self.kind
@@ -139,6 +163,21 @@ impl InverseSensorModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn free_scale_scales_only_the_free_update() {
+        let m = InverseSensorModel::hahnel();
+        assert_eq!(m.with_free_scale(256), Ok(m));
+        let half = m.with_free_scale(128).unwrap();
+        assert_eq!(half.occ_increment(), LogOdds(1024));
+        assert_eq!(half.free_increment(), LogOdds(-512));
+        let q = m.with_free_scale(141).unwrap();
+        assert_eq!(q.free_increment(), LogOdds(-564));
+        assert!((q.nominal_increments().1 + 2.0 * core::f64::consts::LN_2 * 141.0 / 256.0).abs() < 1e-12);
+        assert_eq!(m.with_free_scale(0), Err(Error::InvalidModel));
+        assert_eq!(m.with_free_scale(257), Err(Error::InvalidModel));
+        assert!(m.with_free_scale(1).unwrap().free_increment().0 < 0);
+    }
 
     #[test]
     fn hahnel_default() {

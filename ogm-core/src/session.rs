@@ -205,8 +205,9 @@ impl<S: Storage> Session<S> {
             .geometry(buffers.width, buffers.height)
             .map_err(SessionError::Geometry)?;
         let grid = LogOddsGrid::new(geometry, buffers.grid).map_err(SessionError::Geometry)?;
-        let mapper = Mapper::new(grid, buffers.marks, config.mapper_config())
-            .map_err(SessionError::Mapper)?;
+        let mapper_config = config.mapper_config().map_err(SessionError::Mapper)?;
+        let mapper =
+            Mapper::new(grid, buffers.marks, mapper_config).map_err(SessionError::Mapper)?;
         // The evidence term reads no rays: no forward-model tables to build.
         let forward = if config.data.uses_rays() {
             config.forward_model().map_err(SessionError::ForwardModel)?

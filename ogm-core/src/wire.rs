@@ -30,6 +30,7 @@ use crate::forward_model::ForwardModel;
 use crate::geometry::{GridGeometry, Pose};
 use crate::gibbs::{DataTerm, Estimator, SamplerConfig, SamplerStats};
 use crate::mapper::{MapperConfig, ScanStats};
+use crate::sensor_model::InverseSensorModel;
 use crate::ray_store::StoreStats;
 use crate::{Angle, LogOdds};
 
@@ -168,6 +169,9 @@ pub struct RunConfig {
     pub evidence_gain_q8: u16,
     /// Relative scale of free evidence, Q8 (`SamplerConfig::evidence_free_q8`).
     pub evidence_free_q8: u16,
+    /// Scale of the mapper's free update, Q8, 1..=256 (256 = Hähnel's textbook model;
+    /// [`crate::gibbs::noise_matched_free_q8`] for a noisy sensor).
+    pub free_update_q8: u16,
     /// Offer the evidence's own configuration as a candidate (`SamplerConfig::data_candidate`).
     pub data_candidate: bool,
     /// The marginal estimator.
@@ -209,6 +213,7 @@ impl RunConfig {
             data: DataTerm::Rays,
             evidence_gain_q8: 256,
             evidence_free_q8: 256,
+            free_update_q8: 256,
             data_candidate: false,
             estimator: Estimator::Counts,
             hot_share: 0,
@@ -219,17 +224,18 @@ impl RunConfig {
     /// `host-sim firmware` sends): the paper's grid and forward model, and the sampler made for
     /// online use on a microcontroller — per-cell evidence instead of rays (no memory that grows
     /// with the mission, a bounded cost per patch), the evidence's own configuration as a
-    /// candidate, free evidence scaled to the sensor's noise, Rao-Blackwellised estimates
-    /// restarted where the evidence changes, and three quarters of the tile visits where it
-    /// changed. Why each: docs/results.md, "Online sampler".
+    /// candidate, free evidence matched to the sensor's noise (half in the mapper's update, half
+    /// in the evidence term), averaged estimates restarted where the evidence changes, and
+    /// three quarters of the tile visits where it changed. Why each: docs/results.md, "Online
+    /// sampler".
     pub fn robot(origin_mm: (i32, i32), max_range_mm: u32, seed: u64, budget: Budget) -> Self {
         let paper = Self::paper(origin_mm, max_range_mm, seed, budget);
+        let free = crate::gibbs::noise_matched_free_q8(f64::from(paper.sigma_milli_cells) / 1000.0);
         RunConfig {
             data: DataTerm::Evidence,
             evidence_gain_q8: 512,
-            evidence_free_q8: crate::gibbs::free_evidence_q8(
-                f64::from(paper.sigma_milli_cells) / 1000.0,
-            ),
+            evidence_free_q8: free,
+            free_update_q8: free,
             data_candidate: true,
             estimator: Estimator::Average {
                 shift: 3,
@@ -253,13 +259,16 @@ impl RunConfig {
         )
     }
 
-    /// The mapper settings (Hähnel's ray model, default clamp).
-    pub fn mapper_config(&self) -> MapperConfig {
-        MapperConfig {
+    /// The mapper settings: Hähnel's ray model with the free update scaled by
+    /// `free_update_q8`, default clamp; [`crate::Error::InvalidModel`] if the scale is out of
+    /// range.
+    pub fn mapper_config(&self) -> CoreResult<MapperConfig> {
+        Ok(MapperConfig {
             max_range_mm: self.max_range_mm,
             min_range_mm: self.min_range_mm,
+            model: InverseSensorModel::hahnel().with_free_scale(self.free_update_q8)?,
             ..MapperConfig::new(self.max_range_mm)
-        }
+        })
     }
 
     /// The forward model (maximum range in cells = `max_range_mm / cell_mm`).
@@ -1088,6 +1097,7 @@ mod tests {
             data: DataTerm::Hybrid,
             evidence_gain_q8: u16::MAX,
             evidence_free_q8: u16::MAX,
+            free_update_q8: u16::MAX,
             data_candidate: true,
             estimator: Estimator::Average {
                 shift: u8::MAX,
@@ -1256,7 +1266,20 @@ mod tests {
         let c = RunConfig::paper((-6400, -6400), 3750, 7, Budget::Fixed { updates: 100 });
         let g = c.geometry(256, 256).unwrap();
         assert_eq!(g.origin_mm(), (-6400, -6400));
-        assert_eq!(c.mapper_config(), MapperConfig::new(3750));
+        assert_eq!(c.mapper_config(), Ok(MapperConfig::new(3750)));
+        let robot = RunConfig::robot((0, 0), 3750, 7, Budget::Fixed { updates: 100 });
+        assert_eq!(robot.free_update_q8, 141);
+        assert_eq!(robot.evidence_free_q8, 141);
+        let m = robot.mapper_config().unwrap();
+        assert_eq!(m.model.free_increment(), LogOdds(-564));
+        assert_eq!(m.model.occ_increment(), LogOdds(1024));
+        for bad in [0, 257] {
+            let c = RunConfig {
+                free_update_q8: bad,
+                ..robot
+            };
+            assert_eq!(c.mapper_config(), Err(crate::Error::InvalidModel));
+        }
         assert_eq!(
             c.forward_model().unwrap(),
             ForwardModel::gaussian(3.0, 0.01, 75.0).unwrap()

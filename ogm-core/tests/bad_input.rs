@@ -292,7 +292,7 @@ fn pose_outside_the_map_is_clipped() {
     let cfg = RunConfig::paper((0, 0), 12_000, 1, Budget::Fixed { updates: 50 });
     let g = cfg.geometry(64, 64).unwrap();
     let grid = LogOddsGrid::new(g, vec![LogOdds::ZERO; g.len()]).unwrap();
-    let mut m = Mapper::new(grid, vec![0; marks_len(g.len())], cfg.mapper_config()).unwrap();
+    let mut m = Mapper::new(grid, vec![0; marks_len(g.len())], cfg.mapper_config().unwrap()).unwrap();
     let mut store = RayStore::new(
         g,
         cfg.max_range_mm,
@@ -345,7 +345,7 @@ fn pose_outside_the_map_is_clipped() {
         assert!(s.cells_hit + s.cells_freed <= g.len() as u32);
         gibbs.step(&mut store, m.grid().cells(), 50);
     }
-    let clamp = cfg.mapper_config().clamp;
+    let clamp = cfg.mapper_config().unwrap().clamp;
     assert!(
         m.grid().cells().iter().any(|l| l.0 != 0),
         "rays from just outside reach in"

@@ -102,7 +102,7 @@ fn host_soak(total: usize) -> SoakReport {
     );
     assert_eq!(config.budget, Budget::Fixed { updates: UPDATES });
     let mut r = Session::new(config, Owned::<u8>::buffers(&FIRMWARE_SIZES)).expect("session");
-    let clamp = config.mapper_config().clamp;
+    let clamp = config.mapper_config().expect("valid config").clamp;
     let warm_up = 20 * cycle;
     let mut previous: Option<Vec<i16>> = None;
     let mut allocs = 0u64;
