@@ -4,8 +4,9 @@
 //! patch centres to amortise anything; it scans the tile's centres in raster order instead
 //! (a systematic-scan Gibbs sampler: every update is still an exact draw from Eq. 1, only the
 //! order is fixed, which leaves the posterior invariant). Consecutive patches then share all but
-//! one column of their 5 × 5 window and 3 × 3 evidence, so the sweep keeps both in registers
-//! and reads one new column per update: 5 sample bits and 3 log-odds instead of 25 and 9, and no
+//! one column of their 5 × 5 window and 3 × 3 evidence, so the sweep reads a run of up to 27
+//! centres of a row at once — five sample rows and three rows of evidence bits, as words — and
+//! each update shifts its window and masks out of them: no memory reads for the window, and no
 //! random numbers for the placement. Unseen borders (a few per cent) take the general path.
 
 use super::{Count, DataTerm, Gibbs, LocalRay, PatchPrior};
@@ -13,23 +14,31 @@ use crate::fixed::LogOdds;
 use crate::geometry::CellCoord;
 use crate::ray_store::{RayStore, StoredRay, StoredScan};
 
-/// Where the sweep is, and what it knows about the window there.
+/// Where the sweep is, and what it knows about the windows of a run of centres in its row.
+///
+/// A run ("segment") of up to [`MAX_SPAN`] consecutive centres is read once: five sample rows
+/// and three rows of evidence bits as words, so that each update only shifts its 5 × 5 window
+/// and 3 × 3 masks out of registers. A change of the patch writes its bits back into the rows.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct Raster {
     /// Current patch centre.
     x: i32,
     y: i32,
-    /// Whether `rows`, `known` and `occupied` describe the window at (x, y).
+    /// Whether the rows describe the segment that holds (x, y).
     valid: bool,
-    /// The 5 × 5 sample window, row r (y − 2 + r) in bits 0..5 (bit k: x − 2 + k).
+    /// First centre of the segment.
+    x_start: i32,
+    /// Centres in the segment.
+    span: i32,
+    /// Sample rows y − 2 + r; bit k is column `x_start − 2 + k`.
     rows: [u32; 5],
-    /// The 3 × 3 patch's evidence masks ([`crate::patch`] bit order): log-odds ≠ 0, > 0.
-    known: u32,
-    occupied: u32,
+    /// Evidence rows y − 1 + r (log-odds ≠ 0, > 0); bit k is column `x_start − 1 + k`.
+    known: [u32; 3],
+    occupied: [u32; 3],
 }
 
-/// Columns 0 and 1 of a 3 × 3 mask (bit 3r + c).
-const KEEP_COLS_01: u32 = 0b011_011_011;
+/// Most centres per segment: a sample row then spans `MAX_SPAN + 4` ≤ 31 bits.
+const MAX_SPAN: i32 = 27;
 
 impl<P, B, C, L, K, N> Gibbs<P, B, C, L, K, N>
 where
@@ -69,56 +78,50 @@ where
             self.visit_left -= 1;
             self.raster_update(store, map);
             self.accumulate();
-            self.raster_advance(map);
+            self.raster_advance();
         }
         budget
     }
 
-    /// Evidence bits (≠ 0, > 0) of cell (x, y) (none outside the map).
-    #[inline]
-    fn evidence_at(map: &[LogOdds], width: i32, x: i32, y: i32) -> (u32, u32) {
-        if x < 0 || y < 0 || x >= width {
-            return (0, 0);
-        }
-        let v = map
-            .get(y as usize * width as usize + x as usize)
-            .map_or(0, |l| i32::from(l.0));
-        // Sign bits, branch-free: v | −v < 0 iff v ≠ 0; −v < 0 iff v > 0.
-        (
-            ((v | v.wrapping_neg()) as u32) >> 31,
-            (v.wrapping_neg() as u32) >> 31,
-        )
-    }
-
-    /// Reads the whole window and masks at the current position.
+    /// Reads the segment that starts at the current centre: up to [`MAX_SPAN`] centres, to the
+    /// tile's last column.
     fn raster_load(&mut self, map: &[LogOdds]) {
         let (x, y) = (self.raster.x, self.raster.y);
+        let span = (self.tile.2 - x + 1).clamp(1, MAX_SPAN);
         let width = usize::from(self.geometry.width());
         let mut rows = [0u32; 5];
         for (r, row) in rows.iter_mut().enumerate() {
             let yy = y - 2 + r as i32;
             // Patch centres keep a 2-cell margin: the window is in the map.
             if yy >= 0 && x >= 2 {
-                *row = self.bits(yy as usize * width + (x - 2) as usize, 5);
+                *row = self.bits(yy as usize * width + (x - 2) as usize, (span + 4) as u32);
             }
         }
         self.raster.rows = rows;
-        let (mut known, mut occupied) = (0u32, 0u32);
-        for r in 0..3 {
-            for c in 0..3 {
-                let (k, o) = Self::evidence_at(map, width as i32, x - 1 + c, y - 1 + r);
-                known |= k << (3 * r + c);
-                occupied |= o << (3 * r + c);
+        let (mut known, mut occupied) = ([0u32; 3], [0u32; 3]);
+        for (r, (k, o)) in known.iter_mut().zip(occupied.iter_mut()).enumerate() {
+            // Columns x − 1 ..= x + span of row y − 1 + r: in the map (the 2-cell margin), so
+            // a slice that is not (only a broken tiling) reads as no evidence.
+            let start = (y - 1 + r as i32) as usize * width + (x - 1) as usize;
+            let Some(cells) = map.get(start..start + span as usize + 2) else {
+                continue;
+            };
+            for (c, l) in cells.iter().enumerate() {
+                let v = i32::from(l.0);
+                // Sign bits, branch-free: v | −v < 0 iff v ≠ 0; −v < 0 iff v > 0.
+                *k |= (((v | v.wrapping_neg()) as u32) >> 31) << c;
+                *o |= ((v.wrapping_neg() as u32) >> 31) << c;
             }
         }
         (self.raster.known, self.raster.occupied) = (known, occupied);
+        (self.raster.x_start, self.raster.span) = (x, span);
         self.raster.valid = true;
     }
 
-    /// Moves to the next centre of the tile in raster order, shifting the window by a column
-    /// within a row.
+    /// Moves to the next centre of the tile in raster order; past the segment's end the next
+    /// update reads a new one.
     #[inline]
-    fn raster_advance(&mut self, map: &[LogOdds]) {
+    fn raster_advance(&mut self) {
         let (x0, y0, x1, y1) = self.tile;
         let (x, y) = (self.raster.x + 1, self.raster.y);
         if x > x1 {
@@ -128,35 +131,9 @@ where
             return;
         }
         self.raster.x = x;
-        if !self.raster.valid {
-            return;
+        if x - self.raster.x_start >= self.raster.span {
+            self.raster.valid = false;
         }
-        // Window: column x + 2 comes in (patch centres keep a 2-cell margin, so the column is in
-        // the map; a bit outside the sample reads 0).
-        let w = usize::from(self.geometry.width());
-        let words = self.buf.sample.as_ref();
-        let mut idx = (y - 2).max(0) as usize * w + (x + 2) as usize;
-        let mut rows = self.raster.rows;
-        for row in rows.iter_mut() {
-            let bit = words.get(idx / 32).map_or(0, |v| (v >> (idx % 32)) & 1);
-            *row = (*row >> 1) | (bit << 4);
-            idx += w;
-        }
-        self.raster.rows = rows;
-        // Evidence: column x + 1 comes in.
-        let width = i32::from(self.geometry.width());
-        // >> 1 moves columns 1, 2 to 0, 1; the mask drops what crossed into column 2 from the
-        // row above.
-        let (mut known, mut occupied) = (
-            (self.raster.known >> 1) & KEEP_COLS_01,
-            (self.raster.occupied >> 1) & KEEP_COLS_01,
-        );
-        for r in 0..3 {
-            let (k, o) = Self::evidence_at(map, width, x + 1, y - 1 + r);
-            known |= k << (3 * r + 2);
-            occupied |= o << (3 * r + 2);
-        }
-        (self.raster.known, self.raster.occupied) = (known, occupied);
     }
 
     /// One update at the raster position.
@@ -173,12 +150,17 @@ where
             x: self.raster.x,
             y: self.raster.y,
         };
-        let [r0, r1, r2, r3, r4] = self.raster.rows;
+        // The centre's offset in the segment (0 ≤ s < span ≤ 27).
+        let sh = (self.raster.x - self.raster.x_start) as u32 & 31;
+        let [r0, r1, r2, r3, r4] = self.raster.rows.map(|r| (r >> sh) & 0x1F);
         let window = r0 | r1 << 5 | r2 << 10 | r3 << 15 | r4 << 20;
         let (current, border) = (
             crate::patch::patch_of(window),
             crate::patch::border_of(window),
         );
+        let [k0, k1, k2] = self.raster.known.map(|k| (k >> sh) & 7);
+        let [o0, o1, o2] = self.raster.occupied.map(|o| (o >> sh) & 7);
+        let (known, occupied) = (k0 | k1 << 3 | k2 << 6, o0 | o1 << 3 | o2 << 6);
         // The incremental window and masks equal a fresh read (checked in every debug build).
         debug_assert_eq!((current, border), self.config_and_border(centre));
         debug_assert_eq!(
@@ -186,12 +168,12 @@ where
                 let e = super::patch_evidence(map, usize::from(self.geometry.width()), centre, 3);
                 (u32::from(e.known), u32::from(e.occupied))
             },
-            (self.raster.known, self.raster.occupied)
+            (known, occupied)
         );
         let new = if self.random_patch_due() {
             self.random_patch(store, centre, current)
         } else if let Some((configs, log_priors)) = self.prior.table(border) {
-            let masks = (self.raster.known as u16, self.raster.occupied as u16);
+            let masks = (known as u16, occupied as u16);
             let new = self.evidence_update(map, centre, current, masks, configs, log_priors);
             if new != current {
                 self.stats.changed += 1;
@@ -203,10 +185,10 @@ where
             self.update_at(store, map, centre, current, border)
         };
         if new != current {
-            // The patch's cells in the window.
+            // The patch's cells in the segment's rows: columns sh + 1 ..= sh + 3.
             for (r, row) in self.raster.rows.iter_mut().skip(1).take(3).enumerate() {
                 let bits = u32::from(new) >> (3 * r) & 7;
-                *row = (*row & !0b01110) | bits << 1;
+                *row = (*row & !(7 << (sh + 1))) | bits << (sh + 1);
             }
         }
     }
