@@ -445,10 +445,20 @@ pub const FIRMWARE_SIZES: Sizes = Sizes {
 /// The engine of a replay: the firmware's, over `Vec`s with counters of type `N`.
 pub type ReplaySession<N> = Session<Owned<N>>;
 
-/// Marginal p(occupied) per cell of `s` (0.5 before the first sample).
+/// Marginal p(occupied) per cell of `s` as the robot streams it: 0.5 (unknown) where no
+/// measurement reached the cell (log-odds 0, the rule of `map_export::stream_probabilities`)
+/// or before the first sample.
 pub fn marginals<N: Count>(s: &ReplaySession<N>) -> Vec<f64> {
-    (0..s.log_odds().len())
-        .map(|i| s.marginal(i).map_or(0.5, f64::from))
+    s.log_odds()
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            if l.0 == 0 {
+                0.5
+            } else {
+                s.marginal(i).map_or(0.5, f64::from)
+            }
+        })
         .collect()
 }
 
@@ -1559,7 +1569,14 @@ fn accuracy(
                 cfg,
                 seed,
             )?;
-            score(name, &o.marginals)?;
+            // Unobserved cells unknown, as in every map the robot streams.
+            let m: Vec<f64> = o
+                .marginals
+                .iter()
+                .zip(&sim.observed)
+                .map(|(&p, &seen)| if seen { p } else { 0.5 })
+                .collect();
+            score(name, &m)?;
             if cfg.bounds.rays.is_some() {
                 acc.local_overflow_firmware += o.stats.local_overflow;
                 acc.tile_visits += o.stats.tile_visits;

@@ -173,7 +173,10 @@ mod tests {
         assert_eq!(half.free_increment(), LogOdds(-512));
         let q = m.with_free_scale(141).unwrap();
         assert_eq!(q.free_increment(), LogOdds(-564));
-        assert!((q.nominal_increments().1 + 2.0 * core::f64::consts::LN_2 * 141.0 / 256.0).abs() < 1e-12);
+        assert!(
+            (q.nominal_increments().1 + 2.0 * core::f64::consts::LN_2 * 141.0 / 256.0).abs()
+                < 1e-12
+        );
         assert_eq!(m.with_free_scale(0), Err(Error::InvalidModel));
         assert_eq!(m.with_free_scale(257), Err(Error::InvalidModel));
         assert!(m.with_free_scale(1).unwrap().free_increment().0 < 0);

@@ -30,8 +30,8 @@ use crate::forward_model::ForwardModel;
 use crate::geometry::{GridGeometry, Pose};
 use crate::gibbs::{DataTerm, Estimator, SamplerConfig, SamplerStats};
 use crate::mapper::{MapperConfig, ScanStats};
-use crate::sensor_model::InverseSensorModel;
 use crate::ray_store::StoreStats;
+use crate::sensor_model::InverseSensorModel;
 use crate::{Angle, LogOdds};
 
 /// Schema version, the first byte of every frame.

@@ -292,7 +292,12 @@ fn pose_outside_the_map_is_clipped() {
     let cfg = RunConfig::paper((0, 0), 12_000, 1, Budget::Fixed { updates: 50 });
     let g = cfg.geometry(64, 64).unwrap();
     let grid = LogOddsGrid::new(g, vec![LogOdds::ZERO; g.len()]).unwrap();
-    let mut m = Mapper::new(grid, vec![0; marks_len(g.len())], cfg.mapper_config().unwrap()).unwrap();
+    let mut m = Mapper::new(
+        grid,
+        vec![0; marks_len(g.len())],
+        cfg.mapper_config().unwrap(),
+    )
+    .unwrap();
     let mut store = RayStore::new(
         g,
         cfg.max_range_mm,

@@ -5,8 +5,14 @@
 //! be asserted; this is not a timing test.
 //!
 //! Seed 1: 34 scans of the generated 12.8 m building, then half a second of board time standing
-//! still. Figures at the time of writing (`host-sim firmware --seed 1 --accuracy --idle 1,5`):
-//! log-odds 0.720; online after the last scan 0.813, after 1 s idle 0.846.
+//! still. Figures at the time of writing (`host-sim firmware --seed 1 --accuracy --idle 1,5,30`,
+//! docs/results.md): log-odds 0.720; online after the last scan 0.80, after 1 s idle 0.84.
+//!
+//! A long mission (1 000 scans taken while driving, the σ = 3-cell simulated lidar) runs the same
+//! firmware application on the host with a fixed number of sampler updates per scan (no QEMU):
+//! there the robot's sampler must beat both the textbook log-odds map and its own noise-matched
+//! one (`host-sim firmware --seed 1 --mission-scans 1000 --accuracy --host-only
+//! --fixed-updates 6000`: 0.677 vs 0.523 and 0.649).
 
 use host_sim::firmware::{print_report, run, FirmwareArgs};
 
@@ -45,5 +51,41 @@ fn online_marginals_beat_the_log_odds_map() {
         late.iter().all(|p| p.online > p.log_odds),
         "{:?}",
         a.anytime
+    );
+}
+
+#[test]
+fn long_missions_beat_both_log_odds_maps() {
+    let r = run(&FirmwareArgs {
+        seed: 1,
+        mission_scans: Some(1000),
+        accuracy: true,
+        host_only: true,
+        fixed_updates: Some(6000),
+        ..FirmwareArgs::default()
+    })
+    .expect("host-sim firmware --host-only run");
+    let a = r.accuracy.expect("accuracy");
+    let f1 = |m: &str| a.methods.get(m).map(|s| s.max_f1).expect(m);
+    let (textbook, own, online, offline) = (
+        f1("traditional"),
+        f1("traditional_noise_matched"),
+        f1("online_firmware_sizes"),
+        f1("offline_firmware_sizes"),
+    );
+    eprintln!(
+        "log-odds {textbook:.4} (noise-matched {own:.4}), online {online:.4}, offline {offline:.4}"
+    );
+    assert!(
+        online >= textbook + 0.10,
+        "online {online} vs log-odds {textbook}"
+    );
+    assert!(
+        online >= own + 0.015,
+        "online {online} vs the robot's log-odds {own}"
+    );
+    assert!(
+        (online - offline).abs() <= 0.02,
+        "online {online} vs offline {offline}"
     );
 }
