@@ -91,7 +91,7 @@ run_qemu() {
         esac
     done
     # FIRMWARE_QEMU_EXTRA: more QEMU arguments, e.g. "-d in_asm,exec,nochain -D FILE" to count
-    # instructions per function (scripts/qemu-profile.sh).
+    # instructions per function and source line (scripts/qemu-profile.py).
     if [ -n "${FIRMWARE_QEMU_EXTRA:-}" ]; then
         local more=()
         read -r -a more <<<"$FIRMWARE_QEMU_EXTRA"

@@ -123,7 +123,7 @@ where
             seeded = true;
         }
         if notify {
-            gibbs.note_changed(i, after);
+            gibbs.note_changed(i, before, after);
         }
     })?;
     if !gibbs.config().data.uses_rays() {

@@ -215,8 +215,9 @@ fn raster_sweep_on(w: u16, h: u16) {
         // Change some evidence, as a scan would, and tell the sampler.
         for _ in 0..50 {
             let i: usize = range(&mut rng, 0, g.len() as i64);
+            let before = map[i];
             map[i] = LogOdds(1024 * range::<i16>(&mut rng, -5, 6));
-            s.note_changed(i, map[i]);
+            s.note_changed(i, before, map[i]);
         }
         s.step(&mut st, &map, 1000 + round * 37);
     }
@@ -331,4 +332,46 @@ fn patch_averaging_matches_the_scalar_rule_row_by_row() {
         }
         assert_eq!(fast, want, "{cells:?} config {config:09b} shift {shift}");
     }
+}
+
+#[test]
+fn estimates_restart_only_when_evidence_appears_or_flips() {
+    let g = GridGeometry::new(40, 40, 50, 0, 0).unwrap();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
+    let map = random_map(&mut rng, g);
+    let (mut s, mut st) = setup(g, evidence_config(5));
+    s.reset(&map, &mut st).unwrap();
+    s.step(&mut st, &map, 20_000);
+    let (free, occ) = (LogOdds(-2048), LogOdds(2048));
+    // 255 = p 1 in a u8 estimate; LogOdds(-2048) is p = 1/17 → 15 after a restart.
+    let restarted = |s: &Sampler, i: usize| s.count(i) == 15 || s.count(i) == 240;
+    let cells: Vec<usize> = (0..g.len()).filter(|&i| map[i].0 != 0).take(200).collect();
+    let mut kept = 0;
+    for &i in &cells {
+        let before = map[i];
+        let same_sign = if before.0 > 0 { occ } else { free };
+        let c0 = s.count(i);
+        s.note_changed(i, before, same_sign);
+        assert_eq!(
+            s.count(i),
+            c0,
+            "cell {i}: evidence only grew, estimate kept"
+        );
+        kept += usize::from(!restarted(&s, i));
+        let flipped = if before.0 > 0 { free } else { occ };
+        s.note_changed(i, same_sign, flipped);
+        assert!(
+            restarted(&s, i),
+            "cell {i}: sign flipped, estimate {}",
+            s.count(i)
+        );
+    }
+    assert!(
+        kept > 100,
+        "most sampled estimates are not at the restart value: {kept}"
+    );
+    // A cell seen for the first time restarts too.
+    let fresh = (0..g.len()).find(|&i| map[i].0 == 0).unwrap();
+    s.note_changed(fresh, LogOdds(0), free);
+    assert!(restarted(&s, fresh), "{}", s.count(fresh));
 }

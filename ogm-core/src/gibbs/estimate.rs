@@ -10,8 +10,10 @@
 ///   *conditional* occupancy probability under Eq. 1 (the normalised weights of the candidates
 ///   that occupy it), which carries the information of every candidate instead of one draw.
 ///   Estimates start at the log-odds map's probability and, with `reset_on_change`
-///   ([`super::Gibbs::note_changed`]), restart there when a cell's evidence changes — so what has
-///   not been sampled yet reads as the traditional map, never as a stale or empty estimate.
+///   ([`super::Gibbs::note_changed`]), restart there when a scan first observes a cell or flips
+///   the sign of its evidence — so what has not been sampled since reads as the traditional map,
+///   never as a stale or empty estimate — while evidence that only grows stronger keeps the
+///   draws already averaged (they were drawn under evidence of the same sign).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Estimator {
@@ -22,7 +24,8 @@ pub enum Estimator {
         /// Log2 of the averaging length, in updates of a cell (a cell is in 9 patches, so about
         /// 9 updates per sweep): 1 ..= 15.
         shift: u8,
-        /// Restart a cell's estimate at its log-odds probability when a scan changes it.
+        /// Restart a cell's estimate at its log-odds probability when a scan first observes it
+        /// or flips the sign of its log-odds.
         reset_on_change: bool,
         /// Average conditional probabilities (Rao-Blackwellised) instead of the draws.
         rao_blackwell: bool,

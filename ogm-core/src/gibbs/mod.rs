@@ -708,12 +708,15 @@ where
         Some((self.count(index) as f32 / n as f32).min(1.0))
     }
 
-    /// Tells the sampler that a scan changed cell `index`'s log-odds to `now` (what
-    /// [`crate::pipeline::insert_and_seed`] does for every cell it updates): marks its tile for
-    /// a visit ([`SamplerConfig::hot_share`]) and, with [`Estimator::Average`]'s
-    /// `reset_on_change`, restarts its estimate at `now`'s probability.
+    /// Tells the sampler that a scan changed cell `index`'s log-odds from `before` to `now`
+    /// (what [`crate::pipeline::insert_and_seed`] does for every cell it updates): marks its
+    /// tile for a visit ([`SamplerConfig::hot_share`]) and, with [`Estimator::Average`]'s
+    /// `reset_on_change`, restarts its estimate at `now`'s probability if the cell was
+    /// unobserved (`before` = 0) or the sign of its evidence flipped. Evidence that only grew
+    /// stronger keeps the estimate: on the simulated runs that is +0.002 to +0.007 of online
+    /// max F1 at the same update count, and fewer instructions per scan (docs/results.md).
     #[inline]
-    pub fn note_changed(&mut self, index: usize, now: LogOdds) {
+    pub fn note_changed(&mut self, index: usize, before: LogOdds, now: LogOdds) {
         if self.config.hot_share > 0 {
             // Index → cell: one hardware division (widths are at least 1).
             let w = u32::from(self.geometry.width());
@@ -725,7 +728,7 @@ where
             let ty = (y.saturating_sub(self.cy0 as u32) >> s).min(self.tiles_y - 1);
             self.hot.mark(tx, ty);
         }
-        if self.config.estimator.resets() {
+        if self.config.estimator.resets() && (before.0 == 0 || (before.0 > 0) != (now.0 > 0)) {
             if let Some(c) = self.buf.counts.as_mut().get_mut(index) {
                 *c = N::from_probability_q16(estimate::probability_q16(now));
             }

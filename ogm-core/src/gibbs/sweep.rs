@@ -106,11 +106,16 @@ where
             let Some(cells) = map.get(start..start + span as usize + 2) else {
                 continue;
             };
-            for (c, l) in cells.iter().enumerate() {
-                let v = i32::from(l.0);
-                // Sign bits, branch-free: v | −v < 0 iff v ≠ 0; −v < 0 iff v > 0.
-                *k |= (((v | v.wrapping_neg()) as u32) >> 31) << c;
-                *o |= ((v.wrapping_neg() as u32) >> 31) << c;
+            // One moving bit: a compare and a conditional OR per mask and cell.
+            let mut bit = 1u32;
+            for l in cells {
+                if l.0 != 0 {
+                    *k |= bit;
+                }
+                if l.0 > 0 {
+                    *o |= bit;
+                }
+                bit <<= 1;
             }
         }
         (self.raster.known, self.raster.occupied) = (known, occupied);
