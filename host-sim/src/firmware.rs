@@ -353,16 +353,20 @@ pub struct NoiseReport {
     pub frames: usize,
     /// …
     pub damaged_frames: usize,
-    /// Intact packets and frames before the first intact `Finish` (what the firmware can have
-    /// accepted before it stopped reading).
+    /// Damaged packets that still pass the LD06's checks (header and 8-bit CRC: one damaged
+    /// packet in 256 does), so the firmware rightly accepts them.
+    pub undetected_packets: usize,
+    /// Packets and frames the firmware can accept before the first intact `Finish` (it stops
+    /// reading there): the intact ones, and for packets also the undetectably damaged ones.
     pub intact_packets_before_finish: usize,
     /// …
     pub intact_frames_before_finish: usize,
-    /// Points of damaged packets inside scans whose framing arrived (the ones the firmware must
-    /// report lost).
+    /// Points of the rejected damaged packets inside scans whose framing arrived (the ones the
+    /// firmware must report lost).
     pub points_in_damaged_packets: u64,
-    /// Whether a host replay of only the intact packets and frames gives the firmware's final
-    /// map (log-odds, marginal counts, sample), cell for cell.
+    /// Whether a host replay of only the packets and frames the firmware can accept (intact,
+    /// or damaged past detection) gives its final map (log-odds, marginal counts, sample), cell
+    /// for cell.
     pub surviving_replay_identical: bool,
 }
 
@@ -1141,7 +1145,8 @@ fn streamed_map(g: &Groups) -> anyhow::Result<StreamedMap> {
 }
 
 /// `--noise-ppm`: which packets and frames were damaged, and whether a host replay of only the
-/// intact ones (in order; garbage dropped) gives the firmware's final map.
+/// ones the firmware can accept (intact, or damaged past the LD06's 8-bit CRC; in order;
+/// garbage dropped) gives the firmware's final map.
 fn noise_report(input: &RunInput, corrupted: &[usize], g: &Groups) -> anyhow::Result<NoiseReport> {
     let mut n = NoiseReport {
         corrupted_bytes: corrupted.len(),
@@ -1156,7 +1161,7 @@ fn noise_report(input: &RunInput, corrupted: &[usize], g: &Groups) -> anyhow::Re
     // Per scan: its intact-framing state and damaged packets.
     let (mut in_scan, mut scan_damaged) = (false, 0u64);
     for u in &input.units {
-        let bad = damaged(u);
+        let mut bad = damaged(u);
         let bytes = &input.bytes[u.start..u.start + u.len];
         match u.kind {
             UnitKind::Garbage => continue,
@@ -1164,8 +1169,17 @@ fn noise_report(input: &RunInput, corrupted: &[usize], g: &Groups) -> anyhow::Re
                 n.packets += 1;
                 if bad {
                     n.damaged_packets += 1;
-                    scan_damaged += ogm_core::ld06::POINTS as u64;
-                } else if !finished {
+                    let valid = <&[u8; ogm_core::ld06::PACKET_LEN]>::try_from(bytes)
+                        .is_ok_and(|b| ogm_core::ld06::Packet::parse(b).is_ok());
+                    if valid {
+                        // Past the LD06's own checks: the robot cannot tell, nor lose it.
+                        n.undetected_packets += 1;
+                        bad = false;
+                    } else {
+                        scan_damaged += ogm_core::ld06::POINTS as u64;
+                    }
+                }
+                if !bad && !finished {
                     n.intact_packets_before_finish += 1;
                 }
             }
@@ -1700,8 +1714,8 @@ pub fn print_report(r: &FirmwareReport) {
     }
     if let Some(n) = &r.noise {
         println!(
-            "noise: {} bytes corrupted; {} of {} LD06 packets and {} of {} frames damaged; {} points in damaged packets of framed scans; replay of the intact packets alone {}",
-            n.corrupted_bytes, n.damaged_packets, n.packets, n.damaged_frames, n.frames,
+            "noise: {} bytes corrupted; {} of {} LD06 packets ({} of them past the 8-bit CRC) and {} of {} frames damaged; {} points in rejected packets of framed scans; replay of the acceptable packets alone {}",
+            n.corrupted_bytes, n.damaged_packets, n.packets, n.undetected_packets, n.damaged_frames, n.frames,
             n.points_in_damaged_packets,
             if n.surviving_replay_identical { "identical" } else { "DIFFERENT" }
         );

@@ -427,6 +427,10 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     tiles_x: u32,
     tiles_y: u32,
     hot: HotTiles,
+    /// Cell indices `lo ..= hi` (part of one row) whose tile is marked in `hot`: consecutive
+    /// changed cells mostly share a tile, and this spares them the division and the bitset
+    /// (empty when `lo > hi`; emptied whenever a visit takes a mark).
+    hot_span: (usize, usize),
     /// Evidence gains in effect (Q8), occupied and free: the configured ones, scaled for the
     /// hybrid term.
     ev_gain: i32,
@@ -599,6 +603,7 @@ where
             tiles_x,
             tiles_y,
             hot: HotTiles::new(tiles_x, tiles_y),
+            hot_span: (1, 0),
             ev_gain: 0,
             ev_free_gain: 0,
             _count: core::marker::PhantomData,
@@ -717,7 +722,21 @@ where
     /// max F1 at the same update count, and fewer instructions per scan (docs/results.md).
     #[inline]
     pub fn note_changed(&mut self, index: usize, before: LogOdds, now: LogOdds) {
-        if self.config.hot_share > 0 {
+        let (lo, hi) = self.hot_span;
+        #[cfg(debug_assertions)]
+        if self.config.hot_share > 0 && lo <= index && index <= hi {
+            // The span's promise: this cell's tile is marked.
+            let w = u32::from(self.geometry.width()).max(1);
+            let (x, y) = (index as u32 % w, index as u32 / w);
+            let s = u32::from(self.config.tile_shift);
+            let tx = (x.saturating_sub(self.cx0 as u32) >> s).min(self.tiles_x - 1);
+            let ty = (y.saturating_sub(self.cy0 as u32) >> s).min(self.tiles_y - 1);
+            debug_assert!(
+                self.hot.is_marked(tx, ty),
+                "cell {index}: tile ({tx}, {ty})"
+            );
+        }
+        if self.config.hot_share > 0 && !(lo <= index && index <= hi) {
             // Index → cell: one hardware division (widths are at least 1).
             let w = u32::from(self.geometry.width());
             let i = index as u32;
@@ -727,6 +746,23 @@ where
             let tx = (x.saturating_sub(self.cx0 as u32) >> s).min(self.tiles_x - 1);
             let ty = (y.saturating_sub(self.cy0 as u32) >> s).min(self.tiles_y - 1);
             self.hot.mark(tx, ty);
+            // The columns of row y in tile column tx (the first and last tile columns also
+            // take the margins outside the sampled area).
+            let x_lo = if tx == 0 {
+                0
+            } else {
+                (self.cx0 as u32).saturating_add(tx << s)
+            };
+            let x_hi = if tx + 1 >= self.tiles_x {
+                w.saturating_sub(1)
+            } else {
+                (self.cx0 as u32)
+                    .saturating_add((tx + 1) << s)
+                    .saturating_sub(1)
+                    .min(w.saturating_sub(1))
+            };
+            let row = (y * w) as usize;
+            self.hot_span = (row + x_lo as usize, row + x_hi as usize);
         }
         if self.config.estimator.resets() && (before.0 == 0 || (before.0 > 0) != (now.0 > 0)) {
             if let Some(c) = self.buf.counts.as_mut().get_mut(index) {
@@ -767,6 +803,7 @@ where
             }
         }
         self.hot.clear();
+        self.hot_span = (1, 0);
         (
             self.samples,
             self.halving,
@@ -911,6 +948,7 @@ where
         let t = 1i32 << self.config.tile_shift;
         let r = self.rng.next_u32();
         let hot = if (r & 0xff) < u32::from(self.config.hot_share) {
+            self.hot_span = (1, 0);
             self.hot.take()
         } else {
             None

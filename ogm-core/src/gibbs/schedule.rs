@@ -58,6 +58,17 @@ impl HotTiles {
         }
     }
 
+    /// Whether tile `(tx, ty)`'s group is marked.
+    #[cfg(debug_assertions)]
+    pub(crate) fn is_marked(&self, tx: u32, ty: u32) -> bool {
+        let g = (ty >> self.group_shift) * self.groups_x + (tx >> self.group_shift);
+        g < self.groups
+            && self
+                .bits
+                .get((g / 32) as usize)
+                .is_some_and(|w| w >> (g % 32) & 1 != 0)
+    }
+
     /// Clears every mark.
     pub(crate) fn clear(&mut self) {
         self.bits = [0; MAX_GROUPS / 32];
