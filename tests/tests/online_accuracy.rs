@@ -6,7 +6,7 @@
 //!
 //! Seed 1: 34 scans of the generated 12.8 m building, then half a second of board time standing
 //! still. Figures at the time of writing (`host-sim firmware --seed 1 --accuracy --idle 1,5,30`,
-//! docs/results.md): log-odds 0.720; online after the last scan 0.80, after 1 s idle 0.84.
+//! docs/results.md): log-odds 0.720; online after the last scan 0.807, after 1 s idle 0.828.
 //!
 //! A long mission (1 000 scans taken while driving, the σ = 3-cell simulated lidar) runs the same
 //! firmware application on the host with a fixed number of sampler updates per scan (no QEMU):
