@@ -1865,6 +1865,20 @@ mod tests {
             parse_send_line(&line).unwrap(),
             Some(host_frame(&HostMsg::Config(default_config())))
         );
+        // A settings file from before `free_update_q8` existed reads as the textbook model.
+        let old = line.replace(
+            &format!(",\"free_update_q8\":{}", default_config().free_update_q8),
+            "",
+        );
+        assert!(!old.contains("free_update_q8"), "{old}");
+        let want = RunConfig {
+            free_update_q8: 256,
+            ..default_config()
+        };
+        assert_eq!(
+            parse_send_line(&old).unwrap(),
+            Some(host_frame(&HostMsg::Config(want)))
+        );
     }
 
     /// Reads from `port` until `n` bytes came (or 10 s passed).

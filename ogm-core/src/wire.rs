@@ -170,7 +170,10 @@ pub struct RunConfig {
     /// Relative scale of free evidence, Q8 (`SamplerConfig::evidence_free_q8`).
     pub evidence_free_q8: u16,
     /// Scale of the mapper's free update, Q8, 1..=256 (256 = Hähnel's textbook model;
-    /// [`crate::gibbs::noise_matched_free_q8`] for a noisy sensor).
+    /// [`crate::gibbs::noise_matched_free_q8`] for a noisy sensor). A settings file written
+    /// before the field existed (JSON without it) reads as 256, the model it then meant;
+    /// postcard always carries it.
+    #[serde(default = "textbook_free_update")]
     pub free_update_q8: u16,
     /// Offer the evidence's own configuration as a candidate (`SamplerConfig::data_candidate`).
     pub data_candidate: bool,
@@ -178,6 +181,11 @@ pub struct RunConfig {
     pub estimator: Estimator,
     /// Of every 256 tile visits, how many go to tiles that changed (`SamplerConfig::hot_share`).
     pub hot_share: u8,
+}
+
+/// `RunConfig::free_update_q8`'s value where a settings file lacks it: the textbook model.
+fn textbook_free_update() -> u16 {
+    256
 }
 
 impl RunConfig {
