@@ -1,11 +1,13 @@
-//! Soak: long runs with no overflow, no drift of saturated cells and flat memory.
+//! Soak: long runs with no overflow, no oscillation of the map and flat memory.
 //!
 //! * **Host** ([`host_soak`]): the firmware's per-scan step on its engine
 //!   (`ogm_core::session::Session`: `insert` = `pipeline::insert_and_seed`, then `step`, with the
 //!   firmware's buffer sizes and `u8` marginal counts) on the scans of a simulated 12.8 m run,
-//!   cycled. Checks at every cycle: log-odds within the clamp; once warmed up the map at the end
-//!   of a cycle equals the map at the end of the previous one (the same scans again: saturated
-//!   cells stay exactly where they are); samples ≤ 255 and counts ≤ samples + 1 (a sweep
+//!   cycled. Checks at every cycle: log-odds within the clamp; once warmed up a cell's value at
+//!   the end of a cycle either equals the previous cycle's or creeps towards the clamp, always
+//!   the same way, and fewer cells move each cycle (the same scans again; with the robot's
+//!   noise-matched free update, −564 against +1024, a cell's net increment per cycle can be as
+//!   small as 4 LSB, so reaching the clamp can take thousands of cycles); samples ≤ 255 and counts ≤ samples + 1 (a sweep
 //!   counts cell by cell); the ray store within its capacity; counters never run backwards (no
 //!   wrap-around); and **no heap allocation at
 //!   all** while scans are processed (a counting global allocator, per thread), so memory is
@@ -105,6 +107,8 @@ fn host_soak(total: usize) -> SoakReport {
     let clamp = config.mapper_config().expect("valid config").clamp;
     let warm_up = 20 * cycle;
     let mut previous: Option<Vec<i16>> = None;
+    let mut direction = vec![0i8; r.log_odds().len()];
+    let mut last_moved = usize::MAX;
     let mut allocs = 0u64;
     let mut last = r.sampler_report();
     for k in 0..total {
@@ -126,8 +130,30 @@ fn host_soak(total: usize) -> SoakReport {
         );
         if k >= warm_up {
             if let Some(p) = &previous {
-                let moved = p.iter().zip(&map).filter(|(a, b)| a != b).count();
-                assert_eq!(moved, 0, "{moved} cells drifted in cycle {}", k / cycle);
+                // The same scans again: a cell's end-of-cycle value either stays (the textbook
+                // increments, ±1024, reach the clamp within a few cycles) or, with the robot's
+                // noise-matched free update (−564), creeps towards the clamp by its net
+                // increment per cycle (as little as 4 LSB: up to thousands of cycles) — but
+                // always the same way. Never back and forth.
+                let mut moved = 0;
+                for (i, (a, b)) in p.iter().zip(&map).enumerate() {
+                    let d = (b - a).signum() as i8;
+                    if d != 0 {
+                        moved += 1;
+                        assert!(
+                            direction[i] == 0 || direction[i] == d,
+                            "cell {i} turned back in cycle {}",
+                            k / cycle
+                        );
+                        direction[i] = d;
+                    }
+                }
+                assert!(
+                    moved <= last_moved,
+                    "{moved} cells moved in cycle {}, {last_moved} before",
+                    k / cycle
+                );
+                last_moved = moved;
             }
         }
         previous = Some(map);
@@ -169,7 +195,7 @@ fn check_host(r: &SoakReport) {
 
 #[test]
 fn host_soak_short() {
-    // 60 cycles of the 34-scan run: 20 to warm up, 40 checked for drift.
+    // 60 cycles of the 34-scan run: 20 to warm up, 40 checked for oscillation.
     let r = host_soak(60 * 34);
     check_host(&r);
 }
