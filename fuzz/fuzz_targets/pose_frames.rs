@@ -42,6 +42,7 @@ enum Item {
         data: u8,
         evidence_gain_q8: u16,
         evidence_free_q8: u16,
+        free_update_q8: u16,
         data_candidate: bool,
         shift: u8,
         reset_on_change: bool,
@@ -135,6 +136,7 @@ fuzz_target!(|items: Vec<Item>| {
                 data,
                 evidence_gain_q8,
                 evidence_free_q8,
+                free_update_q8,
                 data_candidate,
                 shift,
                 reset_on_change,
@@ -168,6 +170,7 @@ fuzz_target!(|items: Vec<Item>| {
                     },
                     evidence_gain_q8,
                     evidence_free_q8,
+                    free_update_q8,
                     data_candidate,
                     estimator: if shift == 0 {
                         Estimator::Counts
