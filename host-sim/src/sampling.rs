@@ -69,8 +69,9 @@ impl Variant {
     }
 
     /// `cfg` with this variant's data term and estimator: the robot's (`RunConfig::robot`,
-    /// free evidence and the evidence map's free update matched to `cfg.sigma_cells`) for [`Variant::L9Border`] and
-    /// [`Variant::L9BorderHybrid`], the paper's (rays, sample counts) for the others.
+    /// free evidence and the evidence map's free update matched to `cfg.sigma_cells`) for
+    /// [`Variant::L9Border`] and [`Variant::L9BorderHybrid`], the paper's (rays, sample counts)
+    /// for the others.
     pub fn configure(self, cfg: &SamplingConfig) -> SamplingConfig {
         match self {
             Variant::L9Border | Variant::L9BorderHybrid => {
@@ -80,6 +81,8 @@ impl Variant {
                     0,
                     ogm_core::wire::Budget::Fixed { updates: 0 },
                 );
+                // The robot's split: √r in the mapper's update, √r in the evidence term.
+                let free = ogm_core::gibbs::noise_matched_free_q8(cfg.sigma_cells);
                 SamplingConfig {
                     data: if self == Variant::L9Border {
                         DataTerm::Evidence
@@ -87,8 +90,8 @@ impl Variant {
                         DataTerm::Hybrid
                     },
                     evidence_gain_q8: robot.evidence_gain_q8,
-                    evidence_free_q8: ogm_core::gibbs::noise_matched_free_q8(cfg.sigma_cells),
-                    free_update_q8: ogm_core::gibbs::noise_matched_free_q8(cfg.sigma_cells),
+                    evidence_free_q8: free,
+                    free_update_q8: free,
                     data_candidate: robot.data_candidate,
                     estimator: robot.estimator,
                     hot_share: robot.hot_share,

@@ -723,31 +723,26 @@ where
     #[inline]
     pub fn note_changed(&mut self, index: usize, before: LogOdds, now: LogOdds) {
         let (lo, hi) = self.hot_span;
-        #[cfg(debug_assertions)]
-        if self.config.hot_share > 0 && lo <= index && index <= hi {
+        let in_span = lo <= index && index <= hi;
+        if self.config.hot_share > 0 && in_span {
             // The span's promise: this cell's tile is marked.
-            let w = u32::from(self.geometry.width()).max(1);
-            let (x, y) = (index as u32 % w, index as u32 / w);
-            let s = u32::from(self.config.tile_shift);
-            let tx = (x.saturating_sub(self.cx0 as u32) >> s).min(self.tiles_x - 1);
-            let ty = (y.saturating_sub(self.cy0 as u32) >> s).min(self.tiles_y - 1);
-            debug_assert!(
-                self.hot.is_marked(tx, ty),
-                "cell {index}: tile ({tx}, {ty})"
-            );
-        }
-        if self.config.hot_share > 0 && !(lo <= index && index <= hi) {
-            // Index → cell: one hardware division (widths are at least 1).
-            let w = u32::from(self.geometry.width());
-            let i = index as u32;
-            let y = i / w.max(1);
-            let x = i - y * w;
-            let s = u32::from(self.config.tile_shift);
-            let tx = (x.saturating_sub(self.cx0 as u32) >> s).min(self.tiles_x - 1);
-            let ty = (y.saturating_sub(self.cy0 as u32) >> s).min(self.tiles_y - 1);
+            #[cfg(debug_assertions)]
+            {
+                let (tx, ty, _) = self.tile_of(index);
+                debug_assert!(
+                    self.hot.is_marked(tx, ty),
+                    "cell {index}: tile ({tx}, {ty})"
+                );
+            }
+        } else if self.config.hot_share > 0 {
+            let (tx, ty, (x, y)) = self.tile_of(index);
             self.hot.mark(tx, ty);
             // The columns of row y in tile column tx (the first and last tile columns also
             // take the margins outside the sampled area).
+            let (w, s) = (
+                u32::from(self.geometry.width()),
+                u32::from(self.config.tile_shift),
+            );
             let x_lo = if tx == 0 {
                 0
             } else {
@@ -761,6 +756,10 @@ where
                     .saturating_sub(1)
                     .min(w.saturating_sub(1))
             };
+            debug_assert!(
+                x_lo <= x && x <= x_hi,
+                "cell {index}: {x} not in {x_lo}..={x_hi}"
+            );
             let row = (y * w) as usize;
             self.hot_span = (row + x_lo as usize, row + x_hi as usize);
         }
@@ -769,6 +768,21 @@ where
                 *c = N::from_probability_q16(estimate::probability_q16(now));
             }
         }
+    }
+
+    /// The sampler tile `(tx, ty)` that cell `index` belongs to (cells in the margin outside the
+    /// sampled area go to the nearest tile), and the cell `(x, y)`: one hardware division
+    /// (widths are at least 1).
+    #[inline]
+    fn tile_of(&self, index: usize) -> (u32, u32, (u32, u32)) {
+        let w = u32::from(self.geometry.width());
+        let i = index as u32;
+        let y = i / w.max(1);
+        let x = i - y * w;
+        let s = u32::from(self.config.tile_shift);
+        let tx = (x.saturating_sub(self.cx0 as u32) >> s).min(self.tiles_x - 1);
+        let ty = (y.saturating_sub(self.cy0 as u32) >> s).min(self.tiles_y - 1);
+        (tx, ty, (x, y))
     }
 
     /// Starts over from the thresholded log-odds map: resets the sample, the marginals, the
