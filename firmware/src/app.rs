@@ -1,8 +1,10 @@
 //! The application: board-independent. It sees the board only through `embedded_io` traits and
 //! [`Platform`], its memory only through [`Memory`].
 //!
-//! Main loop ([`run`]): receive bytes on the link → [`LinkRx`] (LD06 packets + host frames →
-//! scans with poses) → for each scan: [`Session::insert`] (log-odds update, seeding of newly
+//! Main loop ([`run`]): bytes from the lidar's UART → [`Ld06Parser`] → [`Turns`] (packets
+//! placed by the timestamped poses from the link, motion-compensated turns), and bytes from the
+//! link → [`LinkRx`] (settings, poses, and scans a host tunnels with their own pose) → for each
+//! scan or turn: [`Session::insert`] (log-odds update, seeding of newly
 //! observed cells into the sampler, rays into the store when the data term reads them) →
 //! sampler steps for the rest of the scan period (bounded, see [`Budget`]) → report the scan,
 //! stream changed tiles. `Finish` from the host: stream everything still unsent, statistics,
@@ -14,14 +16,18 @@
 //! must stream the identical map (`host-sim firmware`).
 
 use embedded_io::{Read, ReadReady, Write};
+use ogm_core::ld06::Ld06Parser;
 use ogm_core::link::{LinkRx, Step};
+use ogm_core::pose_track::Mount;
+use ogm_core::turn::{Turn, Turns};
 use ogm_core::session::{Buffers, Session, Sizes, Storage};
 use ogm_core::wire::firmware_sizes as sz;
 use ogm_core::wire::{
     self, Budget, ConfigFault, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello,
-    IdleReport, Layer, LinkCounters, RunConfig, ScanReport, Tile, TileRect,
+    IdleReport, Layer, LidarCounters, LinkCounters, PoseInput, RunConfig, ScanReport, Tile,
+    TileRect,
 };
-use ogm_core::{Beam, Pose, ScanBuf};
+use ogm_core::{Pose, ScanBuf};
 
 use crate::platform::{Platform, Work};
 use crate::selftest;
@@ -50,8 +56,12 @@ pub struct Memory<'a, S: Storage> {
     pub buffers: Buffers<S>,
     /// Where the engine is built once the settings arrive (its ~2.5 KiB stay off the stack).
     pub session: &'a mut Option<Session<S>>,
-    /// The scan being received.
+    /// The scan being received from the host.
     pub scan: &'a mut ScanBuf<MAX_BEAMS>,
+    /// The lidar turn being assembled.
+    pub turn: &'a mut ScanBuf<MAX_BEAMS>,
+    /// Lidar packets waiting for their pose, and the poses.
+    pub turns: &'a mut Turns,
     /// One encoded outgoing frame.
     pub tx: &'a mut [u8; wire::MAX_DEVICE_FRAME],
     /// One tile's cells, before encoding.
@@ -92,11 +102,50 @@ struct Totals {
     max_insert_ticks: u32,
 }
 
-/// The application: the link receiver, the scan buffer and the [`State`].
+/// The application: the link receiver, the lidar's parser and turns, their buffers and the
+/// [`State`].
 pub struct App<'a, S: Storage> {
     rx: LinkRx,
     pub(crate) scan: &'a mut ScanBuf<MAX_BEAMS>,
+    lidar: Lidar<'a>,
     pub(crate) state: State<'a, S>,
+}
+
+/// The lidar on the robot's own UART.
+struct Lidar<'a> {
+    parser: Ld06Parser,
+    turns: &'a mut Turns,
+    turn: &'a mut ScanBuf<MAX_BEAMS>,
+    bad_packets: u32,
+    before_config: u32,
+}
+
+impl Lidar<'_> {
+    /// Starts over with the settings' mounting and pose source.
+    fn configure(&mut self, config: &RunConfig) {
+        let m = config.mount;
+        let mount = Mount {
+            x_mm: m.x_mm,
+            y_mm: m.y_mm,
+            yaw: ogm_core::Angle(m.heading),
+        };
+        *self.turns = Turns::new(mount, config.poses == PoseInput::Fixed);
+        self.turn.clear();
+    }
+
+    fn counters(&self) -> LidarCounters {
+        let t = self.turns.counters();
+        LidarCounters {
+            packets: t.packets.saturating_add(self.before_config),
+            bad_packets: self.bad_packets,
+            packets_before_config: self.before_config,
+            turns: t.turns,
+            packets_without_pose: t.packets_without_pose,
+            packets_overflowed: t.packets_overflowed,
+            poses: t.poses,
+            poses_out_of_order: t.poses_out_of_order,
+        }
+    }
 }
 
 /// Everything but the receiver.
@@ -139,6 +188,13 @@ impl<'a, S: Storage> App<'a, S> {
         App {
             rx: LinkRx::new(),
             scan: memory.scan,
+            lidar: Lidar {
+                parser: Ld06Parser::new(),
+                turns: memory.turns,
+                turn: memory.turn,
+                bad_packets: 0,
+                before_config: 0,
+            },
             state: State {
                 session: None,
                 slot: Some(memory.session),
@@ -181,7 +237,60 @@ impl<'a, S: Storage> App<'a, S> {
         platform: &mut P,
         config: RunConfig,
     ) {
-        self.state.configure(link, platform, config);
+        if self.state.configure(link, platform, config) {
+            self.lidar.configure(&config);
+        }
+    }
+
+    /// Whether the lidar's UART may be read: the settings are in, and its packets have room to
+    /// wait for their poses (otherwise the board leaves the bytes in its receive buffer, so
+    /// none is lost where the UART holds them back, as QEMU's does).
+    pub fn wants_lidar(&self) -> bool {
+        self.state.session.is_some() && self.lidar.turns.wants_packets()
+    }
+
+    /// Whether the link may be read: a pose from it would not push out one the lidar's packets
+    /// still need (see [`Turns::wants_poses`]).
+    pub fn wants_link(&self) -> bool {
+        self.lidar.turns.wants_poses()
+    }
+
+    /// Feeds bytes from the lidar's UART: packets are placed by the poses from the link, and
+    /// each finished turn is mapped, sampled, reported and streamed like a host's scan.
+    /// Returns the last turn completed, if any.
+    pub fn feed_lidar<W: Write, P: Platform>(
+        &mut self,
+        bytes: &[u8],
+        link: &mut W,
+        platform: &mut P,
+    ) -> Fed {
+        let mut fed = Fed::Nothing;
+        for &b in bytes {
+            let packet = match self.lidar.parser.push(b) {
+                None => continue,
+                Some(Err(_)) => {
+                    self.lidar.bad_packets = self.lidar.bad_packets.saturating_add(1);
+                    continue;
+                }
+                Some(Ok(p)) => p,
+            };
+            if self.state.session.is_none() {
+                self.lidar.before_config = self.lidar.before_config.saturating_add(1);
+                continue;
+            }
+            let mut done = None;
+            let (state, lidar) = (&mut self.state, &mut self.lidar);
+            lidar.turns.push_packet(&packet, lidar.turn, |turn| {
+                done = Some(state.process_turn(link, platform, &turn));
+            });
+            if let Some(seq) = done {
+                let counters = self.lidar.counters();
+                self.state.counters.lidar = counters;
+                self.state.report(link, self.rx.counters());
+                fed = Fed::Scan(seq);
+            }
+        }
+        fed
     }
 
     /// Counts a UART receive error and reports it.
@@ -203,13 +312,24 @@ impl<'a, S: Storage> App<'a, S> {
         let mut fed = Fed::Nothing;
         for &b in bytes {
             let mut after = After::Nothing;
-            let state = &mut self.state;
+            let (state, lidar) = (&mut self.state, &mut self.lidar);
             self.rx.feed(core::slice::from_ref(&b), self.scan, |step| {
-                after = after.max(state.on_step(step, link, platform));
+                let a = match step {
+                    Step::Pose { t_us, pose } => state.on_pose(lidar, link, platform, t_us, pose),
+                    Step::Config(c) => {
+                        if state.configure(link, platform, c) {
+                            lidar.configure(&c);
+                        }
+                        After::Nothing
+                    }
+                    step => state.on_step(step, link, platform),
+                };
+                after = after.max(a);
             });
             match after {
                 After::Nothing => {}
                 After::Scan(seq) | After::Idle(seq) => {
+                    self.state.counters.lidar = self.lidar.counters();
                     self.state.report(link, self.rx.counters());
                     fed = if matches!(after, After::Scan(_)) {
                         Fed::Scan(seq)
@@ -218,7 +338,8 @@ impl<'a, S: Storage> App<'a, S> {
                     };
                 }
                 After::Finish => {
-                    return Fed::Finished(self.state.finish(link, platform, self.rx.counters()))
+                    self.state.counters.lidar = self.lidar.counters();
+                    return Fed::Finished(self.state.finish(link, platform, self.rx.counters()));
                 }
             }
         }
@@ -259,30 +380,30 @@ impl<S: Storage> State<'_, S> {
     }
 
     /// Applies the host's settings (once; a repeat of the settings in use is ignored — the host
-    /// repeats its frames on a noisy link).
+    /// repeats its frames on a noisy link). Whether they were applied now.
     fn configure<W: Write, P: Platform>(
         &mut self,
         link: &mut W,
         platform: &mut P,
         config: RunConfig,
-    ) {
+    ) -> bool {
         let Some(bufs) = self.spare.take() else {
             if self.session.as_ref().is_some_and(|m| *m.config() == config) {
-                return;
+                return false;
             }
             self.report_error(link, ErrorCode::ConfigTwice, 0);
-            return;
+            return false;
         };
         // The tile stream is cut for the firmware's grid.
         if (usize::from(bufs.width), usize::from(bufs.height)) != (WIDTH, HEIGHT) {
             let detail = ConfigFault::Geometry.detail();
             self.report_error(link, ErrorCode::BadConfig, detail);
-            return;
+            return false;
         }
         let Some(slot) = self.slot.take() else {
             let detail = ConfigFault::NoRoom.detail();
             self.report_error(link, ErrorCode::BadConfig, detail);
-            return;
+            return false;
         };
         match build(slot, config, bufs) {
             Ok(m) => {
@@ -293,12 +414,50 @@ impl<S: Storage> State<'_, S> {
                 self.stack_config = platform.stack_usage().used;
                 platform.repaint_stack();
                 self.send(link, &DeviceMsg::Configured(config));
+                true
             }
             Err(e) => {
                 error!("config rejected: {}", e);
                 self.report_error(link, ErrorCode::BadConfig, e.fault().detail());
+                false
             }
         }
+    }
+
+    /// A pose from the link: placed into the lidar's track; maps the turns it completes.
+    fn on_pose<W: Write, P: Platform>(
+        &mut self,
+        lidar: &mut Lidar<'_>,
+        link: &mut W,
+        platform: &mut P,
+        t_us: u64,
+        pose: Pose,
+    ) -> After {
+        if self.session.is_none() {
+            self.report_error(link, ErrorCode::NoConfig, 0);
+            return After::Nothing;
+        }
+        let mut after = After::Nothing;
+        let pushed = lidar.turns.push_pose(t_us, pose, lidar.turn, |turn| {
+            after = After::Scan(self.process_turn(link, platform, &turn));
+        });
+        if pushed.is_err() {
+            let ms = u32::try_from(t_us / 1000).unwrap_or(u32::MAX);
+            self.report_error(link, ErrorCode::PoseOrder, ms);
+        }
+        after
+    }
+
+    /// Maps a lidar turn like a host's scan; returns its number.
+    fn process_turn<W: Write, P: Platform>(
+        &mut self,
+        link: &mut W,
+        platform: &mut P,
+        turn: &Turn<'_>,
+    ) -> u32 {
+        self.seq = turn.seq;
+        self.process_scan(link, platform, turn);
+        turn.seq
     }
 
     /// One step from the link.
@@ -313,6 +472,8 @@ impl<S: Storage> State<'_, S> {
                 self.configure(link, platform, c);
                 After::Nothing
             }
+            // Poses go to the lidar's turns (`App::feed`); without them there is nothing to do.
+            Step::Pose { .. } => After::Nothing,
             Step::Scan {
                 seq,
                 pose,
@@ -320,7 +481,14 @@ impl<S: Storage> State<'_, S> {
                 overflow,
             } => {
                 self.seq = seq;
-                self.process_scan(link, platform, seq, &pose, beams, overflow);
+                let scan = Turn {
+                    seq,
+                    pose,
+                    t_us: 0,
+                    beams,
+                    overflow,
+                };
+                self.process_scan(link, platform, &scan);
                 After::Scan(seq)
             }
             Step::Finish => After::Finish,
@@ -375,11 +543,15 @@ impl<S: Storage> State<'_, S> {
         &mut self,
         link: &mut W,
         platform: &mut P,
-        seq: u32,
-        pose: &Pose,
-        beams: &[Beam],
-        overflow: u32,
+        scan: &Turn<'_>,
     ) {
+        let Turn {
+            seq,
+            ref pose,
+            t_us,
+            beams,
+            overflow,
+        } = *scan;
         if overflow > 0 {
             self.counters.beams_overflowed =
                 self.counters.beams_overflowed.saturating_add(overflow);
@@ -394,6 +566,7 @@ impl<S: Storage> State<'_, S> {
             pose: (*pose).into(),
             beams: beams.len() as u32,
             beams_overflowed: overflow,
+            t_us,
             ..ScanReport::default()
         };
         let t0 = platform.now();
@@ -665,31 +838,81 @@ fn wait_for_host<L: ReadReady, P: Platform>(link: &mut L, platform: &P) -> bool 
     false
 }
 
-/// The firmware: hello, then the host-driven main loop (or the self-test if no host speaks
-/// within [`HOST_WAIT_US`]). Returns the exit code.
-pub fn run<L: Read + ReadReady + Write, S: Storage, P: Platform>(
-    memory: Memory<'_, S>,
-    link: &mut L,
-    platform: &mut P,
-) -> i32 {
+/// The settings a robot maps with when no host configures it: [`RunConfig::robot`] on a grid
+/// centred on where it was switched on, an LD06's range (12 m), a sampler budget of one LD06
+/// turn (100 ms), and no poses (it maps as a standing sensor: [`PoseInput::Fixed`]). A
+/// constant: [`STORED_FREE_Q8`] is the robot's noise-matched free scale, checked by a test.
+pub const STORED_CONFIG: RunConfig = {
+    let half_w = -((WIDTH as i64 * 50 / 2) as i32);
+    let half_h = -((HEIGHT as i64 * 50 / 2) as i32);
+    let budget = Budget::Time {
+        period_us: 100_000,
+        max_updates: u32::MAX,
+    };
+    let robot = RunConfig::robot_with_free((half_w, half_h), 12_000, 1, budget, STORED_FREE_Q8);
+    RunConfig {
+        poses: PoseInput::Fixed,
+        ..robot
+    }
+};
+
+/// `ogm_core::gibbs::noise_matched_free_q8(3.0)`, the paper's σ of 3 cells.
+pub const STORED_FREE_Q8: u16 = 141;
+
+/// How long the link is held back for a lidar that sends nothing before poses are taken anyway
+/// (so a host is never locked out by a silent lidar), µs.
+const LIDAR_SILENT_US: u64 = 200_000;
+
+/// The firmware: hello, then the main loop over the host link and the lidar's UART. With no
+/// host within [`HOST_WAIT_US`]: a robot whose lidar is talking maps with [`STORED_CONFIG`];
+/// a board with neither runs the self-test. Returns the exit code (when a host sends
+/// `Finish`).
+pub fn run<L, R, S, P>(memory: Memory<'_, S>, link: &mut L, lidar: &mut R, platform: &mut P) -> i32
+where
+    L: Read + ReadReady + Write,
+    R: Read + ReadReady,
+    S: Storage,
+    P: Platform,
+{
     let mut app = App::new(memory);
     app.hello(link, platform);
-    if !wait_for_host(link, platform) {
+    if wait_for_host(link, platform) {
+        info!("host connected");
+    } else if lidar.read_ready().unwrap_or(false) {
+        info!("no host on the link, lidar talking: stored settings");
+        app.configure(link, platform, STORED_CONFIG);
+    } else {
         info!("no host on the link: self-test");
         return selftest::run(&mut app, link, platform);
     }
-    info!("host connected");
-    let mut chunk = [0u8; 64];
+    let silent = (LIDAR_SILENT_US * u64::from(P::TICK_HZ) / 1_000_000) as u32;
+    let mut heard = platform.now();
+    // One LD06 packet at a time (a read completes at most one), so the turn queue's room is
+    // checked before every packet.
+    let mut chunk = [0u8; ogm_core::ld06::PACKET_LEN];
     loop {
-        let n = match link.read(&mut chunk) {
-            Ok(n) => n,
-            Err(_) => {
-                app.uart_error(link);
-                continue;
+        if app.wants_lidar() && lidar.read_ready().unwrap_or(false) {
+            match lidar.read(&mut chunk) {
+                Ok(n) => {
+                    heard = platform.now();
+                    app.feed_lidar(chunk.get(..n).unwrap_or(&[]), link, platform);
+                }
+                Err(_) => app.uart_error(link),
             }
-        };
-        if let Fed::Finished(code) = app.feed(chunk.get(..n).unwrap_or(&[]), link, platform) {
-            return code;
+        }
+        let link_open = app.wants_link() || platform.now().wrapping_sub(heard) > silent;
+        if link_open && link.read_ready().unwrap_or(false) {
+            let n = match link.read(&mut chunk) {
+                Ok(n) => n,
+                Err(_) => {
+                    app.uart_error(link);
+                    continue;
+                }
+            };
+            if let Fed::Finished(code) = app.feed(chunk.get(..n).unwrap_or(&[]), link, platform)
+            {
+                return code;
+            }
         }
     }
 }

@@ -63,7 +63,7 @@ fn main() -> ! {
         memory::LOCAL_RAYS,
         ogm_firmware::app::MAX_BEAMS
     );
-    let code = ogm_firmware::app::run(memory, &mut board.link, &mut board.timer);
+    let code = ogm_firmware::app::run(memory, &mut board.link, &mut board.lidar, &mut board.timer);
     let stack = board::stack_usage();
     info!(
         "stack: {=u32} of {=u32} bytes used since the settings were applied (high-water mark)",

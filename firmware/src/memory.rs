@@ -10,6 +10,8 @@ use ogm_core::ray_store::{StoredRay, StoredScan};
 use ogm_core::session::{Buffers, Session, Storage};
 use ogm_core::wire::firmware_sizes as sz;
 use ogm_core::wire::{MAX_DEVICE_FRAME, MAX_TILE_BYTES};
+use ogm_core::pose_track::Mount;
+use ogm_core::turn::Turns;
 use ogm_core::{LogOdds, ScanBuf};
 use ogm_firmware::Memory;
 
@@ -50,6 +52,10 @@ pub const BLOCK_WORDS: usize = block_words(LOCAL_RAYS, sz::BLOCK_GRID);
 static BLOCKS: StaticBuf<[u32; BLOCK_WORDS]> = StaticBuf::new([0; BLOCK_WORDS]);
 /// The scan being received: 12 B per beam.
 static SCAN: StaticBuf<ScanBuf<{ sz::MAX_BEAMS }>> = StaticBuf::new(ScanBuf::new());
+/// The lidar turn being assembled: 12 B per beam.
+static TURN: StaticBuf<ScanBuf<{ sz::MAX_BEAMS }>> = StaticBuf::new(ScanBuf::new());
+/// Lidar packets waiting for their pose, and the poses (~4 KiB).
+static TURNS: StaticBuf<Turns> = StaticBuf::new(Turns::new(Mount::ZERO, false));
 /// One encoded outgoing frame.
 static TX: StaticBuf<[u8; MAX_DEVICE_FRAME]> = StaticBuf::new([0; MAX_DEVICE_FRAME]);
 /// One tile's cells, before encoding.
@@ -91,6 +97,8 @@ pub fn take() -> Option<Memory<'static, Static>> {
         },
         session: SESSION.put_with(|| None)?,
         scan: SCAN.take()?,
+        turn: TURN.take()?,
+        turns: TURNS.take()?,
         tx: TX.take()?,
         tile: TILE.take()?,
     })

@@ -12,6 +12,7 @@
 
 use embedded_io::Write;
 use ogm_core::session::Storage;
+use ogm_core::turn::Turn;
 use ogm_core::wire::{Budget, LinkCounters, RunConfig};
 use ogm_core::{Angle, Beam, Pose, Range, ScanBuf};
 
@@ -50,20 +51,27 @@ pub fn run<W: Write, S: Storage, P: Platform>(
     link: &mut W,
     platform: &mut P,
 ) -> i32 {
-    let config = RunConfig::robot(
+    // `RunConfig::robot`, with its free scale as a constant (no floating-point code).
+    let config = RunConfig::robot_with_free(
         (-6400, -6400),
         MAX_RANGE_MM,
         1,
         Budget::Fixed {
             updates: UPDATES_PER_SCAN,
         },
+        crate::app::STORED_FREE_Q8,
     );
     app.configure(link, platform, config);
     for (k, p) in POSES.iter().enumerate() {
         room_scan(p, app.scan);
-        let (beams, overflow) = (app.scan.beams(), app.scan.overflow());
-        app.state
-            .process_scan(link, platform, k as u32, p, beams, overflow);
+        let scan = Turn {
+            seq: k as u32,
+            pose: *p,
+            t_us: 0,
+            beams: app.scan.beams(),
+            overflow: app.scan.overflow(),
+        };
+        app.state.process_scan(link, platform, &scan);
         app.state.report(link, LinkCounters::default());
     }
     app.state.finish(link, platform, LinkCounters::default())

@@ -494,6 +494,8 @@ impl<F: Fn(Work) -> Option<u32>> Platform for HostPlatform<F> {
 pub struct HostMemory<N: Count> {
     session: Option<ReplaySession<N>>,
     scan: ScanBuf<MAX_BEAMS>,
+    turn: ScanBuf<MAX_BEAMS>,
+    turns: ogm_core::turn::Turns,
     tx: [u8; ogm_core::wire::MAX_DEVICE_FRAME],
     tile: [u8; ogm_core::wire::MAX_TILE_BYTES],
 }
@@ -504,6 +506,8 @@ impl<N: Count> HostMemory<N> {
         Box::new(HostMemory {
             session: None,
             scan: ScanBuf::new(),
+            turn: ScanBuf::new(),
+            turns: ogm_core::turn::Turns::new(ogm_core::pose_track::Mount::ZERO, false),
             tx: [0; ogm_core::wire::MAX_DEVICE_FRAME],
             tile: [0; ogm_core::wire::MAX_TILE_BYTES],
         })
@@ -516,6 +520,8 @@ impl<N: Count> HostMemory<N> {
             buffers: Owned::<N>::buffers(sizes),
             session: &mut self.session,
             scan: &mut self.scan,
+            turn: &mut self.turn,
+            turns: &mut self.turns,
             tx: &mut self.tx,
             tile: &mut self.tile,
         })

@@ -518,7 +518,7 @@ mod tests {
                 } => got.push((seq, pose, beams.to_vec())),
                 Step::Config(c) => config = Some(c),
                 Step::Finish => finished = true,
-                Step::Idle { .. } | Step::Error(_) => {}
+                Step::Idle { .. } | Step::Pose { .. } | Step::Error(_) => {}
             });
         }
         assert!(finished);

@@ -232,3 +232,197 @@ fn a_run_streams_exactly_the_engine_map() {
     });
     assert_eq!(done.map(|d| (d.scans, d.grid_fnv)), Some((3, fnv)));
 }
+
+/// The 360 beams of [`scan_input`]'s room from `pose`, as bare LD06 packets (the lidar's UART).
+fn room_packets(pose: Pose, ts: &mut u16) -> Vec<u8> {
+    let framed = scan_input(0, pose, ts);
+    let start = host_frame(&HostMsg::ScanStart {
+        seq: 0,
+        pose: pose.into(),
+    })
+    .len();
+    let end = host_frame(&HostMsg::ScanEnd {
+        seq: 0,
+        points: 360,
+    })
+    .len();
+    framed[start..framed.len() - end].to_vec()
+}
+
+/// Feeds link bytes and lidar bytes to one application, up to `chunk` bytes of each in turn,
+/// each only while the application wants it (as the firmware's main loop reads its UARTs);
+/// returns the decoded stream and the final log-odds map.
+fn run_robot(link_in: &[u8], lidar_in: &[u8], chunk: usize) -> (Vec<DeviceEvent>, Vec<i16>) {
+    let mut mem = HostMemory::<u8>::new();
+    let mut app = mem.app(&Sizes::default());
+    let (mut out, mut platform) = (Vec::new(), Fixed(200));
+    app.hello(&mut out, &platform);
+    let (mut l, mut r) = (link_in, lidar_in);
+    while !l.is_empty() || !r.is_empty() {
+        let mut moved = false;
+        if app.wants_lidar() && !r.is_empty() {
+            let (now, rest) = r.split_at(chunk.min(r.len()));
+            app.feed_lidar(now, &mut out, &mut platform);
+            (r, moved) = (rest, true);
+        }
+        // The link waits for the lidar only while the lidar has bytes left (the firmware's
+        // silent-lidar timeout).
+        if (app.wants_link() || r.is_empty()) && !l.is_empty() {
+            let (now, rest) = l.split_at(chunk.min(l.len()));
+            app.feed(now, &mut out, &mut platform);
+            (l, moved) = (rest, true);
+        }
+        if !moved {
+            break; // the lidar's bytes are refused (no settings): the rest stays unread
+        }
+    }
+    let lo = app
+        .session()
+        .map(|s| s.log_odds().iter().map(|l| l.raw()).collect())
+        .unwrap_or_default();
+    let events = StreamDecoder::new()
+        .push(&out)
+        .into_iter()
+        .collect::<Result<Vec<_>, _>>()
+        .expect("the application's stream decodes");
+    (events, lo)
+}
+
+fn scan_reports(events: &[DeviceEvent]) -> Vec<wire::ScanReport> {
+    events
+        .iter()
+        .filter_map(|e| match e {
+            DeviceEvent::Scan(r) => Some(*r),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn a_standing_robot_maps_its_lidar_uart_like_tunnelled_scans() {
+    let at = Pose {
+        x_mm: 300,
+        y_mm: -200,
+        heading: Angle(5000),
+    };
+    // Tunnelled: two scans with their pose.
+    let mut ts = 0;
+    let mut tunnelled = host_frame(&HostMsg::Config(config()));
+    tunnelled.extend(scan_input(0, at, &mut ts));
+    tunnelled.extend(scan_input(1, at, &mut ts));
+    let (ev_a, lo_a) = run_robot(&tunnelled, &[], 64);
+    // The robot loop: the same packets on the lidar's UART (plus a third turn, whose first
+    // packet closes the second), poses on the link every 30 ms that never move.
+    let mut ts = 0;
+    let lidar: Vec<u8> = (0..3).flat_map(|_| room_packets(at, &mut ts)).collect();
+    let mut link = host_frame(&HostMsg::Config(config()));
+    for k in 0..12u64 {
+        link.extend(host_frame(&HostMsg::Pose {
+            t_us: k * 30_000,
+            pose: at.into(),
+        }));
+    }
+    for chunk in [1, 7, 47, 500] {
+        let (ev_b, lo_b) = run_robot(&link, &lidar, chunk);
+        assert!(errors(&ev_b).is_empty(), "{:?}", errors(&ev_b));
+        let reports = scan_reports(&ev_b);
+        // Turns 0 and 1 are closed (turn 2's last packet waits for its pose at 300 ms).
+        assert!(reports.len() >= 2, "chunk {chunk}: {reports:?}");
+        assert_eq!(reports[0].pose, at.into());
+        assert_eq!((reports[0].t_us, reports[1].t_us), (0, 100_000));
+        assert_eq!(scan_reports(&ev_a)[1].beams, reports[1].beams);
+        // The first two turns are the tunnelled scans, bit for bit; the third adds to them.
+        if reports.len() == 2 {
+            assert_eq!(lo_a, lo_b, "chunk {chunk}");
+        }
+    }
+    // Nothing but the stored settings (standing sensor at the origin): it maps.
+    let stored = ogm_firmware::app::STORED_CONFIG;
+    let link = host_frame(&HostMsg::Config(stored));
+    let (ev, lo) = run_robot(&link, &lidar, 47);
+    assert_eq!(scan_reports(&ev).len(), 2, "{:?}", errors(&ev));
+    assert!(lo.iter().any(|&v| v > 0));
+    let counters = ev.iter().rev().find_map(|e| match e {
+        DeviceEvent::Counters(c) => Some(*c),
+        _ => None,
+    });
+    // As of the second turn's report: its closing packet was the 61st.
+    let c = counters.expect("counters").lidar;
+    assert_eq!((c.packets, c.turns, c.poses, c.bad_packets), (61, 2, 0, 0));
+}
+
+#[test]
+fn the_stored_settings_are_the_robot_settings() {
+    use ogm_firmware::app::{STORED_CONFIG, STORED_FREE_Q8};
+    assert_eq!(
+        STORED_FREE_Q8,
+        ogm_core::gibbs::noise_matched_free_q8(f64::from(STORED_CONFIG.sigma_milli_cells) / 1e3)
+    );
+    let robot = RunConfig::robot(
+        (STORED_CONFIG.origin_x_mm, STORED_CONFIG.origin_y_mm),
+        STORED_CONFIG.max_range_mm,
+        STORED_CONFIG.seed,
+        STORED_CONFIG.budget,
+    );
+    assert_eq!(
+        STORED_CONFIG,
+        RunConfig {
+            poses: wire::PoseInput::Fixed,
+            ..robot
+        }
+    );
+    // Centred on the start.
+    let g = STORED_CONFIG.geometry(fw::WIDTH, fw::HEIGHT).unwrap();
+    assert_eq!(g.cell_of_point(0, 0).x, i32::from(fw::WIDTH) / 2);
+}
+
+#[test]
+fn a_moving_robot_places_each_turn_at_the_interpolated_pose() {
+    // Driving +x at 0.5 m/s, turning 30°/s; poses every 40 ms; packets every 100/30 ms.
+    let truth = |t_us: u64| {
+        let t = t_us as f64 / 1e6;
+        Pose {
+            x_mm: (500.0 * t) as i32,
+            y_mm: 0,
+            heading: Angle::from_degrees(30.0 * t),
+        }
+    };
+    let mount = wire::WirePose {
+        x_mm: 80,
+        y_mm: 0,
+        heading: 0,
+    };
+    let cfg = RunConfig { mount, ..config() };
+    let mut lidar = Vec::new();
+    let mut ts = 0u16;
+    for _ in 0..4 {
+        lidar.extend(room_packets(Pose::default(), &mut ts));
+    }
+    let mut link = host_frame(&HostMsg::Config(cfg));
+    for k in 0..12u64 {
+        link.extend(host_frame(&HostMsg::Pose {
+            t_us: k * 40_000,
+            pose: truth(k * 40_000).into(),
+        }));
+    }
+    let (ev, _) = run_robot(&link, &lidar, 47);
+    assert!(errors(&ev).is_empty(), "{:?}", errors(&ev));
+    let reports = scan_reports(&ev);
+    assert!(reports.len() >= 3, "{reports:?}");
+    let m = ogm_core::pose_track::Mount {
+        x_mm: 80,
+        y_mm: 0,
+        yaw: Angle(0),
+    };
+    for r in &reports {
+        // Linear interpolation of a straight line: exact to the mm; heading within 2 units.
+        let want = m.sensor_pose(&truth(r.t_us));
+        let got = Pose::from(r.pose);
+        assert!((got.x_mm - want.x_mm).abs() <= 1, "{got:?} {want:?}");
+        assert!((got.y_mm - want.y_mm).abs() <= 1, "{got:?} {want:?}");
+        assert!(
+            got.heading.signed_diff(want.heading).abs() <= 2,
+            "{got:?} {want:?}"
+        );
+    }
+}

@@ -167,8 +167,11 @@ impl Angle {
         let (ax, ay) = (dx.unsigned_abs(), dy.unsigned_abs());
         // Angle of the first-octant vector (max, min): atan(min/max) ∈ [0, 8192].
         let (hi, lo) = if ax >= ay { (ax, ay) } else { (ay, ax) };
-        // t in 1/2^16 steps; u128 so huge coordinates cannot overflow.
-        let t = ((u128::from(lo) << 16) / u128::from(hi)) as u32; // ≤ 65536
+        // t in 1/2^16 steps, in u64: both scaled down first so that `hi < 2^47` (the ratio
+        // moves by < 2^-31, far below one table step; no 128-bit division on a 32-bit MCU).
+        let shift = (64 - hi.leading_zeros()).saturating_sub(47);
+        let (lo, hi) = (lo >> shift, (hi >> shift).max(1));
+        let t = ((lo << 16) / hi) as u32; // ≤ 65536
         let scaled = t * ATAN_STEPS as u32; // index in 1/65536 steps
         let i = (scaled >> 16) as usize;
         let frac = i64::from(scaled & 0xFFFF);

@@ -60,6 +60,7 @@ pub mod reference;
 pub mod rplidar;
 pub mod sensor_model;
 pub mod session;
+pub mod turn;
 pub mod wire;
 
 pub use angle::Angle;

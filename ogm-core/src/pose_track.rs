@@ -88,6 +88,11 @@ impl<const N: usize> PoseTrack<N> {
         self.ring.back().copied()
     }
 
+    /// The second-oldest pose kept (the oldest once the oldest is forgotten).
+    pub fn second_oldest(&self) -> Option<StampedPose> {
+        self.ring.iter().nth(1).copied()
+    }
+
     /// Poses kept.
     pub fn len(&self) -> usize {
         self.ring.len()
@@ -137,15 +142,20 @@ impl<const N: usize> PoseTrack<N> {
 pub fn interpolate(a: &StampedPose, b: &StampedPose, t_us: u64) -> Pose {
     let span = b.t_us.saturating_sub(a.t_us).max(1);
     let dt = t_us.saturating_sub(a.t_us).min(span);
-    // `dt / span` in Q32: both ≤ 2^64, the quotient ≤ 2^32.
-    let f = ((u128::from(dt) << 32) / u128::from(span)) as i128;
+    // `dt / span` in Q30, in 64-bit arithmetic (no 128-bit division on a 32-bit MCU): both
+    // scaled down first so that `span < 2^34` (poses more than 4.8 h apart lose sub-µs
+    // resolution, nothing else).
+    let shift = (64 - span.leading_zeros()).saturating_sub(34);
+    let (dt, span) = (dt >> shift, (span >> shift).max(1));
+    let f = ((dt << 30) / span) as i64; // ≤ 2^30
+                                        // |q − p| < 2^32 and f ≤ 2^30: the product fits an i64.
     let lerp = |p: i32, q: i32| -> i32 {
-        let d = i128::from(q) - i128::from(p);
-        let v = i128::from(p) + ((d * f + (1 << 31)) >> 32);
-        v.clamp(i128::from(i32::MIN), i128::from(i32::MAX)) as i32
+        let d = i64::from(q) - i64::from(p);
+        let v = i64::from(p) + ((d * f + (1 << 29)) >> 30);
+        v.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
     };
-    let dh = i128::from(b.pose.heading.signed_diff(a.pose.heading));
-    let turn = ((dh * f + (1 << 31)) >> 32) as i16;
+    let dh = i64::from(b.pose.heading.signed_diff(a.pose.heading));
+    let turn = ((dh * f + (1 << 29)) >> 30) as i16;
     Pose {
         x_mm: lerp(a.pose.x_mm, b.pose.x_mm),
         y_mm: lerp(a.pose.y_mm, b.pose.y_mm),
@@ -167,6 +177,13 @@ pub struct Mount {
 }
 
 impl Mount {
+    /// The lidar at the robot's origin, facing its heading.
+    pub const ZERO: Mount = Mount {
+        x_mm: 0,
+        y_mm: 0,
+        yaw: Angle(0),
+    };
+
     /// The sensor's pose in the world when the robot is at `robot` (rounded to the nearest mm;
     /// saturating at the `i32` range).
     pub fn sensor_pose(&self, robot: &Pose) -> Pose {

@@ -35,14 +35,14 @@ use crate::sensor_model::InverseSensorModel;
 use crate::{Angle, LogOdds};
 
 /// Schema version, the first byte of every frame.
-pub const VERSION: u8 = 2;
+pub const VERSION: u8 = 3;
 
 /// CRC-32/ISO-HDLC (the zlib/Ethernet CRC-32), table driven (1 KiB of flash).
 pub static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// Longest host → device frame on the wire, both `0x00` delimiters included (a [`RunConfig`]
-/// with every field at its maximum is ~70 bytes; tested).
-pub const MAX_HOST_FRAME: usize = 112;
+/// with every field at its maximum is 113 bytes; tested).
+pub const MAX_HOST_FRAME: usize = 128;
 
 /// Longest tile payload: 16 × 16 cells of `i16`.
 pub const MAX_TILE_BYTES: usize = 512;
@@ -181,6 +181,28 @@ pub struct RunConfig {
     pub estimator: Estimator,
     /// Of every 256 tile visits, how many go to tiles that changed (`SamplerConfig::hot_share`).
     pub hot_share: u8,
+    /// Where the lidar sits on the robot (x forward, y left, mm; its 0° relative to the robot's
+    /// heading): [`crate::pose_track::Mount`]. Zero (the robot's own pose) where a settings file
+    /// lacks it.
+    #[serde(default)]
+    pub mount: WirePose,
+    /// Where the poses of lidar turns read on the robot's own UART come from. A settings file
+    /// without it reads as [`PoseInput::Link`].
+    #[serde(default)]
+    pub poses: PoseInput,
+}
+
+/// Where the robot's poses come from when the lidar is on the robot's own UART
+/// ([`crate::turn`]); scans tunnelled by a host carry their own pose and ignore it.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum PoseInput {
+    /// Timestamped [`HostMsg::Pose`] messages on the link (odometry or a localiser), at their own
+    /// rate, interpolated to each lidar packet's time.
+    #[default]
+    Link,
+    /// None: the robot stands at the world origin (what a robot powered without a host does).
+    Fixed,
 }
 
 /// `RunConfig::free_update_q8`'s value where a settings file lacks it: the textbook model.
@@ -225,6 +247,12 @@ impl RunConfig {
             data_candidate: false,
             estimator: Estimator::Counts,
             hot_share: 0,
+            mount: WirePose {
+                x_mm: 0,
+                y_mm: 0,
+                heading: 0,
+            },
+            poses: PoseInput::Link,
         }
     }
 
@@ -237,8 +265,23 @@ impl RunConfig {
     /// three quarters of the tile visits where it changed. Why each: docs/results.md, "Online
     /// sampler".
     pub fn robot(origin_mm: (i32, i32), max_range_mm: u32, seed: u64, budget: Budget) -> Self {
+        let sigma = f64::from(Self::paper(origin_mm, max_range_mm, seed, budget).sigma_milli_cells);
+        let free = crate::gibbs::noise_matched_free_q8(sigma / 1000.0);
+        Self::robot_with_free(origin_mm, max_range_mm, seed, budget, free)
+    }
+
+    /// [`RunConfig::robot`] with the noise-matched free scale given (`free_q8`, what
+    /// [`crate::gibbs::noise_matched_free_q8`] gives for the paper's σ = 3 cells: 141), so a
+    /// firmware's stored settings are a constant and carry no floating-point code.
+    pub const fn robot_with_free(
+        origin_mm: (i32, i32),
+        max_range_mm: u32,
+        seed: u64,
+        budget: Budget,
+        free_q8: u16,
+    ) -> Self {
         let paper = Self::paper(origin_mm, max_range_mm, seed, budget);
-        let free = crate::gibbs::noise_matched_free_q8(f64::from(paper.sigma_milli_cells) / 1000.0);
+        let free = free_q8;
         RunConfig {
             data: DataTerm::Evidence,
             evidence_gain_q8: 512,
@@ -293,7 +336,9 @@ impl RunConfig {
     /// log-odds when first observed ([`crate::pipeline::insert_and_seed`]).
     pub fn sampler_config(&self) -> SamplerConfig {
         SamplerConfig {
-            p_rand_patch: (f64::from(self.p_rand_patch_ppm) / 1e6) as f32,
+            // f32 arithmetic: the Cortex-M4F has it in hardware (f64 would be ~2.6 KiB of
+            // software floating point in flash). Exact for every ppm below 2^24.
+            p_rand_patch: self.p_rand_patch_ppm as f32 / 1e6,
             burn_in_sweeps: self.burn_in_sweeps,
             max_candidates: self.max_candidates,
             init_threshold: SamplerConfig::default().init_threshold,
@@ -343,6 +388,16 @@ pub enum HostMsg {
         seq: u32,
         /// Board time to sample for, µs.
         period_us: u32,
+    },
+    /// Where the robot was at `t_us` (µs of the lidar's clock: the LD06 timestamps, unwrapped
+    /// by the device from the first packet it read; each [`ScanReport::t_us`] gives a host that
+    /// clock). Poses come in time order, at their own rate; lidar packets are placed by
+    /// interpolating between the two around their time ([`crate::turn`]).
+    Pose {
+        /// Time, µs of the lidar clock.
+        t_us: u64,
+        /// The robot's pose (not the lidar's: [`RunConfig::mount`] is applied on the device).
+        pose: WirePose,
     },
 }
 
@@ -605,6 +660,9 @@ pub struct ScanReport {
     pub store_ticks: u32,
     /// Timer ticks of the sampler updates.
     pub sampler_ticks: u32,
+    /// When the scan began, µs of the lidar clock (turns read on the robot's UART; 0 for
+    /// scans a host tunnelled).
+    pub t_us: u64,
 }
 
 impl ScanReport {
@@ -748,6 +806,31 @@ pub struct Counters {
     pub uart_errors: u32,
     /// Error messages sent.
     pub errors: u32,
+    /// The lidar on the robot's own UART.
+    pub lidar: LidarCounters,
+}
+
+/// What the device counted of the lidar on its own UART and of the poses that place it
+/// ([`crate::turn`]).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LidarCounters {
+    /// Packets that passed the parser.
+    pub packets: u32,
+    /// Packets the parser rejected (header, CRC, truncated).
+    pub bad_packets: u32,
+    /// Packets read before the settings arrived (not mapped).
+    pub packets_before_config: u32,
+    /// Turns mapped.
+    pub turns: u32,
+    /// Packets dropped: older than every pose kept.
+    pub packets_without_pose: u32,
+    /// Packets dropped: too many waiting for a pose.
+    pub packets_overflowed: u32,
+    /// Poses accepted.
+    pub poses: u32,
+    /// Poses rejected: not newer than the last.
+    pub poses_out_of_order: u32,
 }
 
 /// Error kinds.
@@ -772,6 +855,8 @@ pub enum ErrorCode {
     Uart,
     /// A bad LD06 packet or host frame (`detail`: a [`LinkFault`]).
     Link,
+    /// A pose not newer than the last one, dropped (`detail`: its time, ms, saturated).
+    PoseOrder,
 }
 
 /// Defines a `u32`-numbered detail enum of [`DeviceError::detail`] with its `Display`.
@@ -1113,6 +1198,12 @@ mod tests {
                 rao_blackwell: true,
             },
             hot_share: u8::MAX,
+            mount: WirePose {
+                x_mm: i32::MIN,
+                y_mm: i32::MIN,
+                heading: u16::MAX,
+            },
+            poses: PoseInput::Fixed,
         }
     }
 
@@ -1134,6 +1225,14 @@ mod tests {
                 points: u32::MAX,
             },
             HostMsg::Finish,
+            HostMsg::Pose {
+                t_us: u64::MAX,
+                pose: WirePose {
+                    x_mm: i32::MIN,
+                    y_mm: i32::MIN,
+                    heading: u16::MAX,
+                },
+            },
         ];
         for m in msgs {
             let n = encode(&m, &mut buf).unwrap().len();

@@ -557,7 +557,8 @@ where
         if w <= 2 * m || h <= 2 * m {
             return Err(Error::InvalidGeometry);
         }
-        let p = f64::from(config.p_rand_patch).clamp(0.0, 1.0);
+        // f32, like the setting: hardware arithmetic on the Cortex-M4F, no f64 code in flash.
+        let p = config.p_rand_patch.clamp(0.0, 1.0);
         let cells_per_patch = (size * size) as u32;
         let block_row_words = buf.local.as_ref().len().div_ceil(32);
         let t = 1i32 << config.tile_shift;
@@ -566,7 +567,8 @@ where
         let mut rng = Xoshiro128PlusPlus::seed_from_u64(config.seed);
         let rand_period = if p > 0.0 {
             // Uniform gaps on 1 ..= period have mean (period + 1) / 2 = 1/p.
-            libm::round(2.0 / p - 1.0).clamp(1.0, f64::from(u32::MAX)) as u32
+            // `as` saturates at u32::MAX (and 2/p ≥ 2 keeps it ≥ 1).
+            (libm::roundf(2.0 / p - 1.0) as u32).max(1)
         } else {
             0
         };
