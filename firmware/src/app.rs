@@ -894,8 +894,9 @@ where
         if app.wants_lidar() && lidar.read_ready().unwrap_or(false) {
             match lidar.read(&mut chunk) {
                 Ok(n) => {
-                    heard = platform.now();
                     app.feed_lidar(chunk.get(..n).unwrap_or(&[]), link, platform);
+                    // After the turn it may have completed (mapping and sampling take time).
+                    heard = platform.now();
                 }
                 Err(_) => app.uart_error(link),
             }

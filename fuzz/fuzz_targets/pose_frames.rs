@@ -6,7 +6,9 @@
 //! refresh), sampler steps, and the tile-box computation of the firmware's `mark_dirty`
 //! (`Pose::beam_end` → `GridGeometry::cell_of_point`). A 64 × 64 grid and small buffers keep
 //! an input fast. Invariants: nothing panics; log-odds stay within the clamp; the sampler's
-//! counts never exceed its samples.
+//! counts never exceed its samples. The same bytes also go through the robot loop's lidar
+//! path (`ogm_core::ld06::Ld06Parser` → `ogm_core::turn::Turns`, placed by the `Pose` frames
+//! among them, with any mounting) into the engine.
 #![no_main]
 
 use arbitrary::Arbitrary;
@@ -15,7 +17,11 @@ use ogm_core::gibbs::{DataTerm, Estimator};
 use ogm_core::ld06::{Packet, Point, POINTS};
 use ogm_core::link::{LinkRx, Step};
 use ogm_core::session::{Owned, Session, Sizes};
-use ogm_core::wire::{self, Budget, HostMsg, RunConfig, WirePose, MAX_HOST_FRAME};
+use ogm_core::ld06::Ld06Parser;
+use ogm_core::pose_track::Mount;
+use ogm_core::turn::{Turn, Turns};
+use ogm_core::wire::{self, Budget, HostMsg, PoseInput, RunConfig, WirePose, MAX_HOST_FRAME};
+use ogm_core::Angle;
 use ogm_core::ScanBuf;
 
 const W: u16 = 64;
@@ -48,6 +54,10 @@ enum Item {
         reset_on_change: bool,
         rao_blackwell: bool,
         hot_share: u8,
+        mount_x_mm: i32,
+        mount_y_mm: i32,
+        mount_yaw: u16,
+        fixed_poses: bool,
     },
     PaperConfig {
         origin_x_mm: i16,
@@ -72,6 +82,12 @@ enum Item {
         points: u32,
     },
     Finish,
+    Pose {
+        t_us: u64,
+        x_mm: i32,
+        y_mm: i32,
+        heading: u16,
+    },
     Packet {
         speed_dps: u16,
         start_cdeg: u16,
@@ -142,6 +158,10 @@ fuzz_target!(|items: Vec<Item>| {
                 reset_on_change,
                 rao_blackwell,
                 hot_share,
+                mount_x_mm,
+                mount_y_mm,
+                mount_yaw,
+                fixed_poses,
             } => frame(
                 &mut bytes,
                 &HostMsg::Config(RunConfig {
@@ -182,6 +202,16 @@ fuzz_target!(|items: Vec<Item>| {
                         }
                     },
                     hot_share,
+                    mount: WirePose {
+                        x_mm: mount_x_mm,
+                        y_mm: mount_y_mm,
+                        heading: mount_yaw,
+                    },
+                    poses: if fixed_poses {
+                        PoseInput::Fixed
+                    } else {
+                        PoseInput::Link
+                    },
                 }),
             ),
             Item::PaperConfig {
@@ -240,6 +270,22 @@ fuzz_target!(|items: Vec<Item>| {
                 },
             ),
             Item::Finish => frame(&mut bytes, &HostMsg::Finish),
+            Item::Pose {
+                t_us,
+                x_mm,
+                y_mm,
+                heading,
+            } => frame(
+                &mut bytes,
+                &HostMsg::Pose {
+                    t_us,
+                    pose: WirePose {
+                        x_mm,
+                        y_mm,
+                        heading,
+                    },
+                },
+            ),
             Item::Packet {
                 speed_dps,
                 start_cdeg,
@@ -292,10 +338,32 @@ fuzz_target!(|items: Vec<Item>| {
     let mut machine: Option<Session<Owned<u8>>> = None;
     let mut configured = false;
     let mut scans = 0u32;
+    // The robot loop's lidar path: every LD06 packet among the bytes, placed by the poses.
+    let mut turns = Turns::new(Mount::ZERO, false);
+    let mut turn_buf: ScanBuf<MAX_BEAMS> = ScanBuf::new();
+    let mut parser = Ld06Parser::new();
+    let mut turn_maps = 0u32;
+    let map_turn = |m: &mut Option<Session<Owned<u8>>>, t: Turn<'_>, n: &mut u32| {
+        assert!(t.beams.len() <= MAX_BEAMS);
+        if let Some(m) = m.as_mut() {
+            *n += 1;
+            let _ = m.insert(&t.pose, t.beams);
+            m.step(16);
+        }
+    };
     rx.feed(&bytes, &mut scan, |step| match step {
         Step::Config(c) => {
             if !configured {
                 configured = true;
+                let m = c.mount;
+                turns = Turns::new(
+                    Mount {
+                        x_mm: m.x_mm,
+                        y_mm: m.y_mm,
+                        yaw: Angle(m.heading),
+                    },
+                    c.poses == PoseInput::Fixed,
+                );
                 machine = build(c);
             }
         }
@@ -318,9 +386,24 @@ fuzz_target!(|items: Vec<Item>| {
             );
             assert!(lo.x <= hi.x && lo.y <= hi.y);
         }
+        Step::Pose { t_us, pose } => {
+            let _ = turns.push_pose(t_us, pose, &mut turn_buf, |t| {
+                map_turn(&mut machine, t, &mut turn_maps)
+            });
+        }
         Step::Finish | Step::Idle { .. } | Step::Error(_) => {}
     });
     rx.finish(|_| {});
+    parser.feed(&bytes, |p| {
+        if let Ok(p) = p {
+            turns.push_packet(&p, &mut turn_buf, |t| {
+                map_turn(&mut machine, t, &mut turn_maps)
+            });
+        }
+    });
+    let tc = turns.counters();
+    assert!(tc.turns <= tc.packets && turns.waiting() <= ogm_core::turn::QUEUE);
+    let _ = turn_maps;
     if let Some(m) = machine.as_ref() {
         let (mapper, gibbs) = (m.mapper(), m.gibbs());
         let clamp = mapper.config().clamp;

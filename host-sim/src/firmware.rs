@@ -22,7 +22,7 @@
 
 use std::collections::{BTreeMap, HashMap};
 use std::io::{Read, Write};
-use std::os::unix::net::UnixListener;
+use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
@@ -98,6 +98,13 @@ pub struct FirmwareArgs {
     /// not only when stopped.
     #[arg(long)]
     pub moving: bool,
+    /// The robot loop: the lidar's LD06 bytes on the firmware's own UART (UART0) while the robot
+    /// drives the simulated mission (`--moving`), its poses on the link at 25 Hz, stamped in the
+    /// lidar's clock; the lidar sits 60 mm ahead of the robot's centre. Checks the map
+    /// bit-exact against the host running the same library on the same two byte streams, and
+    /// every turn's pose against the simulator's truth.
+    #[arg(long)]
+    pub robot: bool,
     /// A long mission: the robot (scanning while it drives) keeps exploring, then patrolling,
     /// until it has taken this many scans.
     #[arg(long)]
@@ -245,6 +252,7 @@ impl Default for FirmwareArgs {
             soak_scans: None,
             timeout: 300,
             moving: false,
+            robot: false,
             mission_scans: None,
             idle: Vec::new(),
             sampler: SamplerArgs::default(),
@@ -338,6 +346,28 @@ pub struct FirmwareReport {
     pub hellos: usize,
     /// What `--noise-ppm` did to the input.
     pub noise: Option<NoiseReport>,
+    /// `--robot`: the two serial lines and how well the turns were placed.
+    pub robot: Option<RobotReport>,
+}
+
+/// `--robot`: what the lidar's UART and the link carried, and the placement error of the turns
+/// the firmware mapped against the simulator's true sensor pose at each turn's time.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct RobotReport {
+    /// Turns the lidar sent (complete ones).
+    pub turns_sent: u32,
+    /// Lidar bytes.
+    pub lidar_bytes: usize,
+    /// Pose messages sent.
+    pub poses_sent: usize,
+    /// Pose period, µs.
+    pub pose_period_us: u64,
+    /// Turns the firmware reported.
+    pub turns_mapped: usize,
+    /// Largest position error of a turn's pose, mm.
+    pub max_position_error_mm: f64,
+    /// Largest heading error of a turn's pose, degrees.
+    pub max_heading_error_deg: f64,
 }
 
 /// `--noise-ppm`: the damage done to the robot's input.
@@ -533,8 +563,15 @@ impl<N: Count> HostMemory<N> {
 /// `updates(work)` sampler updates for each scan and idle period; `hook` sees the engine after
 /// every scan and idle period, `end` the final engine (`None` if no valid `Config` arrived) and
 /// everything the application streamed (its `Hello` first).
+///
+/// `input` is the link; `lidar` what the lidar's own UART carried (empty when a host tunnels
+/// the scans). The two are read as the firmware's main loop reads its UARTs — the lidar
+/// whenever the application wants it, the link when the application wants it or the lidar has
+/// nothing left — and the application's result does not depend on how they interleave
+/// (`ogm_core::turn`), so this gives the board's map.
 fn replay<N: Count, R>(
     input: &[u8],
+    lidar: &[u8],
     sizes: Sizes,
     updates: impl Fn(Work) -> Option<u32>,
     mut hook: impl FnMut(Fed, &ReplaySession<N>),
@@ -548,8 +585,18 @@ fn replay<N: Count, R>(
     };
     let mut out = Vec::new();
     app.hello(&mut out, &platform);
-    for b in input {
-        let fed = app.feed(std::slice::from_ref(b), &mut out, &mut platform);
+    let (mut link, mut lidar) = (input, lidar);
+    loop {
+        let fed = if app.wants_lidar() && !lidar.is_empty() {
+            let (b, rest) = lidar.split_at(1);
+            lidar = rest;
+            app.feed_lidar(b, &mut out, &mut platform)
+        } else if let Some((b, rest)) = link.split_first() {
+            link = rest;
+            app.feed(std::slice::from_ref(b), &mut out, &mut platform)
+        } else {
+            break;
+        };
         if let Some(w) = platform.missing {
             bail!("the firmware did not report {w:?}");
         }
@@ -579,6 +626,7 @@ pub fn replay_map(
     let edge = usize::from(hello.tile_edge);
     let state = replay::<u8, _>(
         input,
+        &[],
         sizes_of(hello),
         |work| g.updates(work),
         |_, _| {},
@@ -703,7 +751,7 @@ impl Checker {
 /// Compares the firmware's stream with the host's run of the same application on the same
 /// input: every message equal except the board's timing and stack figures, and the streamed
 /// map equal to the host's engine cell for cell.
-fn compare(input: &[u8], g: &Groups, c: &mut Checker) -> anyhow::Result<()> {
+fn compare(input: &[u8], lidar: &[u8], g: &Groups, c: &mut Checker) -> anyhow::Result<()> {
     let hello = g.hello.as_ref().context("no Hello from the firmware")?;
     ensure!(
         (hello.width, hello.height, hello.tile_edge) == (fw::WIDTH, fw::HEIGHT, fw::TILE_EDGE)
@@ -715,6 +763,7 @@ fn compare(input: &[u8], g: &Groups, c: &mut Checker) -> anyhow::Result<()> {
     let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
     let (stream, state) = replay::<u8, _>(
         input,
+        lidar,
         sizes_of(hello),
         |w| g.updates(w),
         |_, _| {},
@@ -955,10 +1004,21 @@ fn tail(path: &Path, lines: usize) -> String {
     v[v.len().saturating_sub(lines)..].join("\n")
 }
 
-/// Boots `elf` in QEMU with UART1 on a Unix socket, sends `input`, returns the stream bytes.
+/// The robot loop's second serial line and its end: the lidar's bytes on UART0, and the
+/// `Finish` frame the link sends once the firmware has reported turn `last_turn`.
+struct LidarLine<'a> {
+    bytes: &'a [u8],
+    finish: &'a [u8],
+    last_turn: u32,
+}
+
+/// Boots `elf` in QEMU with UART1 (the link) on a Unix socket, sends `input`, returns the
+/// stream bytes. With `lidar`, UART0 is a second socket that carries its bytes, written by
+/// their own thread at their own pace.
 fn run_qemu(
     elf: &Path,
     input: &[u8],
+    lidar: Option<LidarLine<'_>>,
     timeout: Duration,
     log: Option<&Path>,
 ) -> anyhow::Result<(Vec<u8>, Option<ExitStatus>, f64)> {
@@ -969,14 +1029,30 @@ fn run_qemu(
     let listener =
         UnixListener::bind(&sock).with_context(|| format!("binding {}", sock.display()))?;
     listener.set_nonblocking(true)?;
+    let sock0 = dir.join("u0.sock");
+    let listener0 = match &lidar {
+        Some(_) => Some(
+            UnixListener::bind(&sock0).with_context(|| format!("binding {}", sock0.display()))?,
+        ),
+        None => None,
+    };
     let mut cmd = Command::new("bash");
     cmd.arg(root.join("scripts/firmware.sh"))
         .arg("qemu")
         .arg(elf)
         .args(["--timeout", &timeout.as_secs().max(1).to_string()])
-        .args(["--uart1", "chardev:u1", "--", "-chardev"])
-        .arg(format!("socket,id=u1,path={}", sock.display()))
-        .stdin(Stdio::null());
+        .args(["--uart1", "chardev:u1"]);
+    if lidar.is_some() {
+        cmd.args(["--uart0", "chardev:u0"]);
+    }
+    cmd.arg("--");
+    if lidar.is_some() {
+        cmd.arg("-chardev")
+            .arg(format!("socket,id=u0,path={}", sock0.display()));
+    }
+    cmd.arg("-chardev")
+        .arg(format!("socket,id=u1,path={}", sock.display()));
+    cmd.stdin(Stdio::null());
     if let Some(log) = log {
         let f =
             std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
@@ -986,28 +1062,41 @@ fn run_qemu(
     let t0 = Instant::now();
     let mut child = cmd.spawn().context("starting scripts/firmware.sh qemu")?;
     let log_tail = || log.map(|l| tail(l, 40)).unwrap_or_default();
-    let stream = loop {
-        match listener.accept() {
-            Ok((s, _)) => break s,
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                if let Some(st) = child.try_wait()? {
-                    let _ = std::fs::remove_dir_all(&dir);
-                    bail!(
-                        "QEMU exited ({st}) before connecting to the link:\n{}",
-                        log_tail()
-                    );
+    let mut accept = |listener: &UnixListener, path: &Path| -> anyhow::Result<UnixStream> {
+        loop {
+            match listener.accept() {
+                Ok((s, _)) => {
+                    s.set_nonblocking(false)?;
+                    return Ok(s);
                 }
-                if t0.elapsed() > Duration::from_secs(60) {
-                    let _ = child.kill();
-                    let _ = std::fs::remove_dir_all(&dir);
-                    bail!("QEMU did not connect to {} within 60 s", sock.display());
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                    if let Some(st) = child.try_wait()? {
+                        let _ = std::fs::remove_dir_all(&dir);
+                        bail!(
+                            "QEMU exited ({st}) before connecting to {}:\n{}",
+                            path.display(),
+                            log_tail()
+                        );
+                    }
+                    if t0.elapsed() > Duration::from_secs(60) {
+                        let _ = child.kill();
+                        let _ = std::fs::remove_dir_all(&dir);
+                        bail!("QEMU did not connect to {} within 60 s", path.display());
+                    }
+                    std::thread::sleep(Duration::from_millis(10));
                 }
-                std::thread::sleep(Duration::from_millis(10));
+                Err(e) => return Err(e.into()),
             }
-            Err(e) => return Err(e.into()),
         }
     };
-    stream.set_nonblocking(false)?;
+    let stream = accept(&listener, &sock)?;
+    let lidar_stream = match &listener0 {
+        Some(l) => {
+            l.set_nonblocking(true)?;
+            Some(accept(l, &sock0)?)
+        }
+        None => None,
+    };
     let mut writer = stream.try_clone()?;
     let data = input.to_vec();
     // Send only once the firmware has spoken (its Hello): its UART is initialised by then.
@@ -1015,11 +1104,36 @@ fn run_qemu(
     // `Uart::new`, which QEMU needs to start delivering input) and be lost: seen once in ~20
     // noisy-link runs as a lost first frame delimiter.
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
+    // The robot loop: `Finish` only once the last turn is reported (a second go from the
+    // reader), and the lidar's bytes from their own thread.
+    let finish = lidar.as_ref().map(|l| l.finish.to_vec());
+    let last_turn = lidar.as_ref().map(|l| l.last_turn);
+    let (finish_tx, finish_rx) = std::sync::mpsc::channel::<()>();
     let writer = std::thread::spawn(move || match ready_rx.recv() {
-        Ok(()) => writer.write_all(&data),
+        Ok(()) => {
+            writer.write_all(&data)?;
+            match finish {
+                Some(f) if finish_rx.recv().is_ok() => writer.write_all(&f),
+                _ => Ok(()),
+            }
+        }
         Err(_) => Ok(()), // the firmware never spoke; the reader reports it
     });
-    let mut ready = Some(ready_tx);
+    let (lidar_tx, lidar_rx) = std::sync::mpsc::channel::<()>();
+    let lidar_writer = match (lidar_stream, &lidar) {
+        (Some(mut w), Some(l)) => {
+            let bytes = l.bytes.to_vec();
+            Some(std::thread::spawn(move || match lidar_rx.recv() {
+                // Its own pace: a few packets at a time.
+                Ok(()) => bytes.chunks(47 * 8).try_for_each(|c| w.write_all(c)),
+                Err(_) => Ok(()),
+            }))
+        }
+        _ => None,
+    };
+    let mut ready = Some((ready_tx, lidar_tx));
+    let mut finish_go = Some(finish_tx);
+    let mut watch = StreamDecoder::new();
     let mut reader = stream;
     reader.set_read_timeout(Some(Duration::from_millis(200)))?;
     let mut out = Vec::new();
@@ -1031,8 +1145,20 @@ fn run_qemu(
             Ok(0) => break,
             Ok(n) => {
                 out.extend_from_slice(&buf[..n]);
-                if let Some(go) = ready.take() {
+                if let Some((go, go_lidar)) = ready.take() {
                     let _ = go.send(());
+                    let _ = go_lidar.send(());
+                }
+                if let Some(last) = last_turn {
+                    let reported = watch
+                        .push(&buf[..n])
+                        .into_iter()
+                        .any(|e| matches!(e, Ok(DeviceEvent::Scan(r)) if r.seq >= last));
+                    if reported {
+                        if let Some(go) = finish_go.take() {
+                            let _ = go.send(());
+                        }
+                    }
                 }
             }
             Err(e)
@@ -1079,7 +1205,11 @@ fn run_qemu(
     }
     let secs = t0.elapsed().as_secs_f64();
     drop(ready);
+    drop(finish_go);
     let _ = writer.join();
+    if let Some(w) = lidar_writer {
+        let _ = w.join();
+    }
     let _ = std::fs::remove_dir_all(&dir);
     Ok((out, status, secs))
 }
@@ -1226,6 +1356,7 @@ fn noise_report(input: &RunInput, corrupted: &[usize], g: &Groups) -> anyhow::Re
     let streamed = streamed_map(g)?;
     let identical = replay::<u8, _>(
         &surviving,
+        &[],
         sizes,
         |w| g.updates(w),
         |_, _| {},
@@ -1328,6 +1459,9 @@ fn idle_periods_us(secs: &[f64]) -> anyhow::Result<Vec<u32>> {
 
 /// Runs `host-sim firmware` (see the module docs).
 pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
+    if args.robot {
+        return run_robot(args);
+    }
     let root = repo_root();
     let qemu_dir = root.join("firmware/target/qemu");
     std::fs::create_dir_all(&qemu_dir)?;
@@ -1374,6 +1508,7 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         let (stream, status, secs) = run_qemu(
             &elf,
             &input.bytes,
+            None,
             Duration::from_secs(args.timeout),
             log.as_deref(),
         )?;
@@ -1417,7 +1552,7 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
                     .map_or("stdout".into(), |l| l.display().to_string())
             ));
         }
-        match compare(&input.bytes, &groups, &mut checker) {
+        match compare(&input.bytes, &[], &groups, &mut checker) {
             Ok(()) => {}
             Err(e) => checker.fail(format!("{e:#}")),
         }
@@ -1492,6 +1627,173 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         }
     }
     Ok(report)
+}
+
+/// The LD06 sits this far ahead of the robot's centre in `--robot` runs, mm.
+pub const ROBOT_MOUNT_X_MM: i32 = 60;
+
+/// `--robot`: the robot loop in QEMU (see [`FirmwareArgs::robot`]).
+fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
+    ensure!(
+        !args.accuracy
+            && args.idle.is_empty()
+            && args.noise_ppm == 0
+            && !args.garbage
+            && args.soak_scans.is_none()
+            && args.repeat_frames <= 1,
+        "--robot runs the robot loop only: no --accuracy, --idle, --noise-ppm, --garbage, \
+         --soak-scans or --repeat-frames with it"
+    );
+    let root = repo_root();
+    let qemu_dir = root.join("firmware/target/qemu");
+    std::fs::create_dir_all(&qemu_dir)?;
+    let world = firmware_world(args)?;
+    let moving = FirmwareArgs {
+        moving: true,
+        ..args.clone()
+    };
+    let sim_cfg = sim_config(&moving);
+    let sim = simulate(&world, &sim_cfg, args.seed)?;
+    let mut poses: Vec<ogm_core::Pose> = sim.scans.iter().map(|s| s.pose).collect();
+    if let Some(n) = args.max_scans {
+        // `n` turns, and the pose where the next one begins.
+        poses.truncate(n + 1);
+    }
+    let config = RunConfig {
+        mount: ogm_core::wire::WirePose {
+            x_mm: ROBOT_MOUNT_X_MM,
+            y_mm: 0,
+            heading: 0,
+        },
+        ..run_config(&world, args, sim.mapper_config.max_range_mm)
+    };
+    let input = crate::robot::robot_input(
+        &world,
+        &poses,
+        &config,
+        sim_cfg.lidar.sigma_cells,
+        crate::robot::POSE_PERIOD_US,
+        args.seed,
+    )?;
+    let link: Vec<u8> = [&input.link[..], &input.finish[..]].concat();
+    if args.host_only {
+        // The firmware's application on the host, on the same two byte streams, with a fixed
+        // number of sampler updates per turn.
+        let n = args.fixed_updates.unwrap_or(0);
+        let stream = replay::<u8, _>(
+            &link,
+            &input.lidar,
+            FIRMWARE_SIZES,
+            |_| Some(n),
+            |_, _| {},
+            |_, out| out.to_vec(),
+        )?;
+        let events: Vec<DeviceEvent> = StreamDecoder::new()
+            .push(&stream)
+            .into_iter()
+            .collect::<Result<_, _>>()
+            .map_err(|e| anyhow!("the host's own stream does not decode: {e}"))?;
+        let groups = Groups::of(&events);
+        return Ok(robot_report(&config, &input, &link, &groups, &events));
+    }
+    let elf = match &args.elf {
+        Some(e) => e.clone(),
+        None => build_elf(&qemu_dir.join("host-sim-build.log"))?,
+    };
+    let log = (!args.verbose).then(|| qemu_dir.join("host-sim-firmware.log"));
+    let line = LidarLine {
+        bytes: &input.lidar,
+        finish: &input.finish,
+        last_turn: input.turns.saturating_sub(1),
+    };
+    let (stream, status, secs) = run_qemu(
+        &elf,
+        &input.link,
+        Some(line),
+        Duration::from_secs(args.timeout),
+        log.as_deref(),
+    )?;
+    if let Some(out) = &args.out {
+        std::fs::create_dir_all(out)?;
+        std::fs::write(out.join("stream.bin"), &stream)?;
+        std::fs::write(out.join("input.bin"), &link)?;
+        std::fs::write(out.join("lidar.bin"), &input.lidar)?;
+    }
+    let mut dec = StreamDecoder::new();
+    let events: Vec<DeviceEvent> = dec
+        .push(&stream)
+        .into_iter()
+        .filter_map(Result::ok)
+        .collect();
+    let ds = dec.stats();
+    let groups = Groups::of(&events);
+    let mut checker = Checker::default();
+    let exit_code = status.and_then(|s| s.code());
+    if exit_code != Some(0) {
+        checker.fail(format!(
+            "firmware exit status {exit_code:?} (log: {})",
+            log.as_ref()
+                .map_or("stdout".into(), |l| l.display().to_string())
+        ));
+    }
+    if let Err(e) = compare(&link, &input.lidar, &groups, &mut checker) {
+        checker.fail(format!("{e:#}"));
+    }
+    let r = robot_report(&config, &input, &link, &groups, &events);
+    Ok(FirmwareReport {
+        stream_bytes: ds.bytes,
+        stream_frames: ds.frames,
+        stream_bad_frames: ds.bad_frames,
+        exit_code,
+        qemu_seconds: secs,
+        mismatches: checker.mismatches,
+        checks: checker.checks,
+        log,
+        ..r
+    })
+}
+
+/// What a `--robot` run's stream says: the turns and how well they were placed.
+fn robot_report(
+    config: &RunConfig,
+    input: &crate::robot::RobotInput,
+    link: &[u8],
+    groups: &Groups,
+    events: &[DeviceEvent],
+) -> FirmwareReport {
+    let mut reports: Vec<ScanReport> = groups.scans.values().map(|g| g.report).collect();
+    reports.sort_by_key(|r| r.seq);
+    let (pos, head) = crate::robot::pose_errors(&reports, input, config);
+    FirmwareReport {
+        hello: groups.hello.clone(),
+        config: Some(*config),
+        scans_sent: input.turns as usize,
+        input_bytes: link.len() + input.lidar.len(),
+        tiles: groups.all_tiles.len() as u64,
+        device_errors: groups.errors,
+        counters: groups.final_counters,
+        sampler: groups.final_sampler,
+        done: groups.done,
+        figures: groups
+            .hello
+            .as_ref()
+            .map(|h| figures(groups, h))
+            .unwrap_or_default(),
+        hellos: events
+            .iter()
+            .filter(|e| matches!(e, DeviceEvent::Hello(_)))
+            .count(),
+        robot: Some(RobotReport {
+            turns_sent: input.turns,
+            lidar_bytes: input.lidar.len(),
+            poses_sent: input.poses,
+            pose_period_us: crate::robot::POSE_PERIOD_US,
+            turns_mapped: reports.len(),
+            max_position_error_mm: pos,
+            max_heading_error_deg: head,
+        }),
+        ..FirmwareReport::default()
+    }
 }
 
 /// The accuracy cost of the firmware's bounds: the eval-sim sampler (`crate::sampling`,
@@ -1636,6 +1938,7 @@ fn accuracy(
             let mut failure: Option<anyhow::Error> = None;
             let configured = replay::<u8, _>(
                 online.input,
+                &[],
                 FIRMWARE_SIZES,
                 get,
                 |fed, m| {
@@ -1671,6 +1974,7 @@ fn accuracy(
             }
             let unbounded_map = replay::<u32, _>(
                 online.input,
+                &[],
                 unbounded,
                 get,
                 |_, _| {},
@@ -1717,6 +2021,18 @@ pub fn print_report(r: &FirmwareReport) {
     }
     if let Some(c) = &r.counters {
         println!("counters: {c:?}");
+    }
+    if let Some(rb) = &r.robot {
+        println!(
+            "robot loop: {} turns on the lidar UART ({} bytes), {} poses on the link every {} ms; {} turns mapped, placed within {:.1} mm and {:.2} deg of the true sensor pose",
+            rb.turns_sent,
+            rb.lidar_bytes,
+            rb.poses_sent,
+            rb.pose_period_us / 1000,
+            rb.turns_mapped,
+            rb.max_position_error_mm,
+            rb.max_heading_error_deg
+        );
     }
     if let Some(n) = &r.noise {
         println!(
@@ -1798,8 +2114,8 @@ pub fn cli(args: &FirmwareArgs) -> anyhow::Result<()> {
         );
         return Ok(());
     }
-    if args.host_only && !args.accuracy {
-        bail!("--host-only only makes sense with --accuracy");
+    if args.host_only && !args.accuracy && !args.robot {
+        bail!("--host-only only makes sense with --accuracy or --robot");
     }
     // Bad input files first, each with a one-line error naming it (before the toolchain check).
     if let Some(elf) = &args.elf {
@@ -1817,6 +2133,14 @@ pub fn cli(args: &FirmwareArgs) -> anyhow::Result<()> {
     print_report(&r);
     if !args.host_only && !r.identical() {
         bail!("the firmware's map differs from the host's");
+    }
+    if let Some(rb) = &r.robot {
+        ensure!(
+            rb.turns_mapped == rb.turns_sent as usize,
+            "{} of {} turns were mapped",
+            rb.turns_mapped,
+            rb.turns_sent
+        );
     }
     Ok(())
 }

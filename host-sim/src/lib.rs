@@ -21,6 +21,7 @@ pub mod prior;
 pub mod progress;
 pub mod render;
 pub mod report;
+pub mod robot;
 pub mod sampling;
 pub mod sim;
 pub mod world;

@@ -142,14 +142,16 @@ impl Turns {
     }
 
     /// Whether one more pose can be taken without forgetting one a packet still to come may
-    /// need (the oldest may go only if the next one is not after the last packet placed): the
-    /// reader holds the poses back otherwise.
+    /// need: the oldest may go only if the next one is not after the earliest packet still to
+    /// be placed (the first waiting, else the last placed). The reader holds the poses back
+    /// otherwise.
     pub fn wants_poses(&self) -> bool {
         if self.track.len() < POSES {
             return true;
         }
-        match (self.track.second_oldest(), self.placed_us) {
-            (Some(next), Some(placed)) => next.t_us <= placed,
+        let next_packet = self.queue.front().map(|q| q.t_us).or(self.placed_us);
+        match (self.track.second_oldest(), next_packet) {
+            (Some(next), Some(t)) => next.t_us <= t,
             _ => false,
         }
     }
