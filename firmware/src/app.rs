@@ -19,8 +19,8 @@ use embedded_io::{Read, ReadReady, Write};
 use ogm_core::ld06::Ld06Parser;
 use ogm_core::link::{LinkRx, Step};
 use ogm_core::pose_track::Mount;
-use ogm_core::turn::{Turn, Turns};
 use ogm_core::session::{Buffers, Session, Sizes, Storage};
+use ogm_core::turn::{Turn, Turns};
 use ogm_core::wire::firmware_sizes as sz;
 use ogm_core::wire::{
     self, Budget, ConfigFault, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello,
@@ -910,8 +910,7 @@ where
                     continue;
                 }
             };
-            if let Fed::Finished(code) = app.feed(chunk.get(..n).unwrap_or(&[]), link, platform)
-            {
+            if let Fed::Finished(code) = app.feed(chunk.get(..n).unwrap_or(&[]), link, platform) {
                 return code;
             }
         }

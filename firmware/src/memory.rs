@@ -6,12 +6,12 @@
 use crate::board::{StaticArray, StaticBuf, StaticSlot};
 use ogm_core::gibbs::{block_words, LocalRay};
 use ogm_core::mapper::marks_len;
+use ogm_core::pose_track::Mount;
 use ogm_core::ray_store::{StoredRay, StoredScan};
 use ogm_core::session::{Buffers, Session, Storage};
+use ogm_core::turn::Turns;
 use ogm_core::wire::firmware_sizes as sz;
 use ogm_core::wire::{MAX_DEVICE_FRAME, MAX_TILE_BYTES};
-use ogm_core::pose_track::Mount;
-use ogm_core::turn::Turns;
 use ogm_core::{LogOdds, ScanBuf};
 use ogm_firmware::Memory;
 

@@ -14,11 +14,11 @@
 use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
 use ogm_core::gibbs::{DataTerm, Estimator};
+use ogm_core::ld06::Ld06Parser;
 use ogm_core::ld06::{Packet, Point, POINTS};
 use ogm_core::link::{LinkRx, Step};
-use ogm_core::session::{Owned, Session, Sizes};
-use ogm_core::ld06::Ld06Parser;
 use ogm_core::pose_track::Mount;
+use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::turn::{Turn, Turns};
 use ogm_core::wire::{self, Budget, HostMsg, PoseInput, RunConfig, WirePose, MAX_HOST_FRAME};
 use ogm_core::Angle;

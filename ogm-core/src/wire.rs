@@ -35,7 +35,7 @@ use crate::sensor_model::InverseSensorModel;
 use crate::{Angle, LogOdds};
 
 /// Schema version, the first byte of every frame.
-pub const VERSION: u8 = 3;
+pub const VERSION: u8 = 4;
 
 /// CRC-32/ISO-HDLC (the zlib/Ethernet CRC-32), table driven (1 KiB of flash).
 pub static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
