@@ -2117,6 +2117,13 @@ pub fn cli(args: &FirmwareArgs) -> anyhow::Result<()> {
     if args.host_only && !args.accuracy && !args.robot {
         bail!("--host-only only makes sense with --accuracy or --robot");
     }
+    if args.robot && !args.host_only {
+        bail!(
+            "--robot does not run in QEMU yet (UART0 on a second socket delivers one byte; \
+             docs/firmware.md, \"Robot loop status\"): add --host-only to run the robot loop \
+             through the firmware's library on the host"
+        );
+    }
     // Bad input files first, each with a one-line error naming it (before the toolchain check).
     if let Some(elf) = &args.elf {
         check_elf(elf)?;
