@@ -18,7 +18,6 @@
 use embedded_io::{Read, ReadReady, Write};
 use ogm_core::ld06::Ld06Parser;
 use ogm_core::link::{LinkRx, Step};
-use ogm_core::pose_track::Mount;
 use ogm_core::session::{Buffers, Session, Sizes, Storage};
 use ogm_core::turn::{Turn, Turns};
 use ogm_core::wire::firmware_sizes as sz;
@@ -123,13 +122,7 @@ struct Lidar<'a> {
 impl Lidar<'_> {
     /// Starts over with the settings' mounting and pose source.
     fn configure(&mut self, config: &RunConfig) {
-        let m = config.mount;
-        let mount = Mount {
-            x_mm: m.x_mm,
-            y_mm: m.y_mm,
-            yaw: ogm_core::Angle(m.heading),
-        };
-        *self.turns = Turns::new(mount, config.poses == PoseInput::Fixed);
+        *self.turns = Turns::configured(config);
         self.turn.clear();
     }
 
@@ -237,9 +230,7 @@ impl<'a, S: Storage> App<'a, S> {
         platform: &mut P,
         config: RunConfig,
     ) {
-        if self.state.configure(link, platform, config) {
-            self.lidar.configure(&config);
-        }
+        self.state.apply(&mut self.lidar, link, platform, config);
     }
 
     /// Whether the lidar's UART may be read: the settings are in, and its packets have room to
@@ -284,13 +275,23 @@ impl<'a, S: Storage> App<'a, S> {
                 done = Some(state.process_turn(link, platform, &turn));
             });
             if let Some(seq) = done {
-                let counters = self.lidar.counters();
-                self.state.counters.lidar = counters;
-                self.state.report(link, self.rx.counters());
+                self.report(link);
                 fed = Fed::Scan(seq);
             }
         }
         fed
+    }
+
+    /// Sampler/store statistics and every counter (link and lidar as of now).
+    pub(crate) fn report<W: Write>(&mut self, link: &mut W) {
+        let (l, d) = (self.rx.counters(), self.lidar.counters());
+        self.state.report(link, l, d);
+    }
+
+    /// End of the run (see [`State::finish`]) with every counter as of now.
+    pub(crate) fn finish<W: Write, P: Platform>(&mut self, link: &mut W, platform: &P) -> i32 {
+        let (l, d) = (self.rx.counters(), self.lidar.counters());
+        self.state.finish(link, platform, l, d)
     }
 
     /// Counts a UART receive error and reports it.
@@ -314,33 +315,19 @@ impl<'a, S: Storage> App<'a, S> {
             let mut after = After::Nothing;
             let (state, lidar) = (&mut self.state, &mut self.lidar);
             self.rx.feed(core::slice::from_ref(&b), self.scan, |step| {
-                let a = match step {
-                    Step::Pose { t_us, pose } => state.on_pose(lidar, link, platform, t_us, pose),
-                    Step::Config(c) => {
-                        if state.configure(link, platform, c) {
-                            lidar.configure(&c);
-                        }
-                        After::Nothing
-                    }
-                    step => state.on_step(step, link, platform),
-                };
-                after = after.max(a);
+                after = after.max(state.on_step(step, lidar, link, platform));
             });
             match after {
                 After::Nothing => {}
                 After::Scan(seq) | After::Idle(seq) => {
-                    self.state.counters.lidar = self.lidar.counters();
-                    self.state.report(link, self.rx.counters());
+                    self.report(link);
                     fed = if matches!(after, After::Scan(_)) {
                         Fed::Scan(seq)
                     } else {
                         Fed::Idle(seq)
                     };
                 }
-                After::Finish => {
-                    self.state.counters.lidar = self.lidar.counters();
-                    return Fed::Finished(self.state.finish(link, platform, self.rx.counters()));
-                }
+                After::Finish => return Fed::Finished(self.finish(link, platform)),
             }
         }
         fed
@@ -460,20 +447,33 @@ impl<S: Storage> State<'_, S> {
         turn.seq
     }
 
+    /// Applies settings to the engine and, if they were taken now, to the lidar's turns.
+    fn apply<W: Write, P: Platform>(
+        &mut self,
+        lidar: &mut Lidar<'_>,
+        link: &mut W,
+        platform: &mut P,
+        config: RunConfig,
+    ) {
+        if self.configure(link, platform, config) {
+            lidar.configure(&config);
+        }
+    }
+
     /// One step from the link.
     fn on_step<W: Write, P: Platform>(
         &mut self,
         step: Step<'_>,
+        lidar: &mut Lidar<'_>,
         link: &mut W,
         platform: &mut P,
     ) -> After {
         match step {
             Step::Config(c) => {
-                self.configure(link, platform, c);
+                self.apply(lidar, link, platform, c);
                 After::Nothing
             }
-            // Poses go to the lidar's turns (`App::feed`); without them there is nothing to do.
-            Step::Pose { .. } => After::Nothing,
+            Step::Pose { t_us, pose } => self.on_pose(lidar, link, platform, t_us, pose),
             Step::Scan {
                 seq,
                 pose,
@@ -666,8 +666,14 @@ impl<S: Storage> State<'_, S> {
     }
 
     /// Sampler/store statistics and counters.
-    pub(crate) fn report<W: Write>(&mut self, link: &mut W, link_counters: LinkCounters) {
+    fn report<W: Write>(
+        &mut self,
+        link: &mut W,
+        link_counters: LinkCounters,
+        lidar: LidarCounters,
+    ) {
         self.counters.link = link_counters;
+        self.counters.lidar = lidar;
         if let Some(m) = self.session.as_deref() {
             let r = m.sampler_report();
             send(&mut self.tx[..], link, &DeviceMsg::Sampler(r));
@@ -677,14 +683,15 @@ impl<S: Storage> State<'_, S> {
     }
 
     /// End of the run: everything still unsent, statistics, `Done`; returns the exit code.
-    pub(crate) fn finish<W: Write, P: Platform>(
+    fn finish<W: Write, P: Platform>(
         &mut self,
         link: &mut W,
         platform: &P,
         link_counters: LinkCounters,
+        lidar: LidarCounters,
     ) -> i32 {
         self.stream_tiles(link, true);
-        self.report(link, link_counters);
+        self.report(link, link_counters, lidar);
         let stack = platform.stack_usage();
         let mut done = Done {
             scans: self.counters.scans,

@@ -13,7 +13,7 @@
 use embedded_io::Write;
 use ogm_core::session::Storage;
 use ogm_core::turn::Turn;
-use ogm_core::wire::{Budget, LinkCounters, RunConfig};
+use ogm_core::wire::{Budget, RunConfig};
 use ogm_core::{Angle, Beam, Pose, Range, ScanBuf};
 
 use crate::app::App;
@@ -72,9 +72,9 @@ pub fn run<W: Write, S: Storage, P: Platform>(
             overflow: app.scan.overflow(),
         };
         app.state.process_scan(link, platform, &scan);
-        app.state.report(link, LinkCounters::default());
+        app.report(link);
     }
-    app.state.finish(link, platform, LinkCounters::default())
+    app.finish(link, platform)
 }
 
 /// Fills `scan` with the synthetic square-room scan seen from `pose`.

@@ -21,7 +21,6 @@ use ogm_core::pose_track::Mount;
 use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::turn::{Turn, Turns};
 use ogm_core::wire::{self, Budget, HostMsg, PoseInput, RunConfig, WirePose, MAX_HOST_FRAME};
-use ogm_core::Angle;
 use ogm_core::ScanBuf;
 
 const W: u16 = 64;
@@ -355,15 +354,7 @@ fuzz_target!(|items: Vec<Item>| {
         Step::Config(c) => {
             if !configured {
                 configured = true;
-                let m = c.mount;
-                turns = Turns::new(
-                    Mount {
-                        x_mm: m.x_mm,
-                        y_mm: m.y_mm,
-                        yaw: Angle(m.heading),
-                    },
-                    c.poses == PoseInput::Fixed,
-                );
+                turns = Turns::configured(&c);
                 machine = build(c);
             }
         }

@@ -1214,6 +1214,18 @@ fn run_qemu(
     Ok((out, status, secs))
 }
 
+/// The messages of a stream captured from the board (bad frames skipped, counted in the
+/// decoder's statistics).
+fn decode_captured(stream: &[u8]) -> (Vec<DeviceEvent>, crate::link::DecoderStats) {
+    let mut dec = StreamDecoder::new();
+    let events = dec
+        .push(stream)
+        .into_iter()
+        .filter_map(Result::ok)
+        .collect();
+    (events, dec.stats())
+}
+
 /// Checks that `path` is an ELF executable (one-line errors naming the file).
 pub fn check_elf(path: &Path) -> anyhow::Result<()> {
     let bytes = match std::fs::read(path) {
@@ -1520,13 +1532,7 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
             std::fs::write(out.join("stream.bin"), &stream)?;
             std::fs::write(out.join("input.bin"), &input.bytes)?;
         }
-        let mut dec = StreamDecoder::new();
-        let events: Vec<DeviceEvent> = dec
-            .push(&stream)
-            .into_iter()
-            .filter_map(Result::ok)
-            .collect();
-        let ds = dec.stats();
+        let (events, ds) = decode_captured(&stream);
         (
             report.stream_bytes,
             report.stream_frames,
@@ -1719,13 +1725,7 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         std::fs::write(out.join("input.bin"), &link)?;
         std::fs::write(out.join("lidar.bin"), &input.lidar)?;
     }
-    let mut dec = StreamDecoder::new();
-    let events: Vec<DeviceEvent> = dec
-        .push(&stream)
-        .into_iter()
-        .filter_map(Result::ok)
-        .collect();
-    let ds = dec.stats();
+    let (events, ds) = decode_captured(&stream);
     let groups = Groups::of(&events);
     let mut checker = Checker::default();
     let exit_code = status.and_then(|s| s.code());

@@ -15,7 +15,6 @@
 
 use anyhow::ensure;
 use ogm_core::ld06::{self, Packet, Point, POINTS};
-use ogm_core::pose_track::Mount;
 use ogm_core::wire::{HostMsg, RunConfig, ScanReport, WirePose};
 use ogm_core::{Angle, Pose};
 use rand::SeedableRng;
@@ -77,6 +76,19 @@ impl Trajectory {
         )
     }
 
+    /// Where a lidar mounted at `mount` (`RunConfig::mount`: x forward, y left, mm; its 0°
+    /// relative to the heading) is at `t_us`, in f64: (x mm, y mm, heading rad).
+    pub fn sensor_at(&self, mount: &WirePose, t_us: u64) -> (f64, f64, f64) {
+        let (x, y, h) = self.at(t_us);
+        let (c, s) = (h.cos(), h.sin());
+        let (mx, my) = (f64::from(mount.x_mm), f64::from(mount.y_mm));
+        (
+            x + mx * c - my * s,
+            y + mx * s + my * c,
+            h + Angle(mount.heading).to_radians(),
+        )
+    }
+
     /// [`Trajectory::at`] rounded to a pose.
     pub fn pose_at(&self, t_us: u64) -> Pose {
         let (x, y, h) = self.at(t_us);
@@ -130,12 +142,6 @@ pub fn robot_input(
     );
     let noise = Normal::new(0.0, sigma_cells.max(0.0))?;
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    let m = config.mount;
-    let mount = Mount {
-        x_mm: m.x_mm,
-        y_mm: m.y_mm,
-        yaw: Angle(m.heading),
-    };
     let mut lidar = Vec::new();
     // Every packet of `turns` turns, and the first of the next (it closes the last).
     for k in 0..=turns * PACKETS_PER_TURN {
@@ -151,14 +157,7 @@ pub fn robot_input(
             timestamp_ms: (t_ms % 30_000) as u16,
             points: [Point::default(); POINTS],
         };
-        let (x, y, h) = trajectory.at(t_ms * 1000);
-        let (c, s) = (h.cos(), h.sin());
-        let (mx, my) = (f64::from(mount.x_mm), f64::from(mount.y_mm));
-        let (sx, sy, sh) = (
-            x + mx * c - my * s,
-            y + mx * s + my * c,
-            h + mount.yaw.to_radians(),
-        );
+        let (sx, sy, sh) = trajectory.sensor_at(&config.mount, t_ms * 1000);
         for i in 0..POINTS {
             // Along the angle the device will give the point.
             let dir = sh + ld06::beam_angle(packet.angle_cdeg(i)).to_radians();
@@ -212,17 +211,9 @@ pub fn robot_input(
 /// heading error (degrees) over `reports`, each against the true sensor pose at the turn's
 /// time.
 pub fn pose_errors(reports: &[ScanReport], input: &RobotInput, config: &RunConfig) -> (f64, f64) {
-    let m = config.mount;
     let (mut pos, mut head) = (0.0f64, 0.0f64);
     for r in reports {
-        let (x, y, h) = input.trajectory.at(r.t_us);
-        let (c, s) = (h.cos(), h.sin());
-        let (mx, my) = (f64::from(m.x_mm), f64::from(m.y_mm));
-        let want = (
-            x + mx * c - my * s,
-            y + mx * s + my * c,
-            h + Angle(m.heading).to_radians(),
-        );
+        let want = input.trajectory.sensor_at(&config.mount, r.t_us);
         let got = Pose::from(r.pose);
         pos = pos.max((f64::from(got.x_mm) - want.0).hypot(f64::from(got.y_mm) - want.1));
         let dh = (got.heading.to_radians() - want.2).rem_euclid(std::f64::consts::TAU);

@@ -34,6 +34,7 @@ use crate::geometry::Pose;
 use crate::hal::{Beam, Range, ScanBuf};
 use crate::ld06::{Packet, POINTS};
 use crate::pose_track::{Mount, PoseTrack, TrackError};
+use crate::wire::{PoseInput, RunConfig};
 
 /// Packets that can wait for their pose (~140 ms of LD06 data).
 pub const QUEUE: usize = 64;
@@ -123,6 +124,12 @@ impl Turns {
                 poses_out_of_order: 0,
             },
         }
+    }
+
+    /// Nothing received, the lidar mounted and its poses sourced as `config` says
+    /// ([`RunConfig::mount`], [`RunConfig::poses`]).
+    pub fn configured(config: &RunConfig) -> Self {
+        Turns::new(config.lidar_mount(), config.poses == PoseInput::Fixed)
     }
 
     /// The counters so far.

@@ -310,6 +310,15 @@ impl RunConfig {
         )
     }
 
+    /// [`RunConfig::mount`] as the [`crate::pose_track::Mount`] the lidar's turns use.
+    pub const fn lidar_mount(&self) -> crate::pose_track::Mount {
+        crate::pose_track::Mount {
+            x_mm: self.mount.x_mm,
+            y_mm: self.mount.y_mm,
+            yaw: Angle(self.mount.heading),
+        }
+    }
+
     /// The mapper settings: Hähnel's ray model with the free update scaled by
     /// `free_update_q8`, default clamp; [`crate::Error::InvalidModel`] if the scale is out of
     /// range.
