@@ -13,6 +13,8 @@
 //! straight lines ([`Trajectory`]); the device must place every turn at the interpolated pose,
 //! which [`pose_errors`] checks against the truth.
 
+use std::ops::Range;
+
 use anyhow::ensure;
 use ogm_core::ld06::{self, Packet, Point, POINTS};
 use ogm_core::wire::{HostMsg, RunConfig, ScanReport, WirePose};
@@ -116,6 +118,20 @@ pub struct RobotInput {
     pub poses: usize,
     /// The truth.
     pub trajectory: Trajectory,
+    /// The order a robot's two lines carry these bytes in: byte ranges of `link` and `lidar`,
+    /// by the time they describe (settings first; a packet before a pose of the same time).
+    /// A real robot's lines run in step like this; a test that writes each line on its own
+    /// lets one run seconds ahead, which no robot does.
+    pub schedule: Vec<(Line, Range<usize>)>,
+}
+
+/// One of the robot's two serial lines.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Line {
+    /// The host link (settings, poses).
+    Link,
+    /// The lidar's own UART.
+    Lidar,
 }
 
 /// The lidar bytes and pose messages of a robot driving through `poses` (one every 100 ms) in
@@ -143,6 +159,8 @@ pub fn robot_input(
     let noise = Normal::new(0.0, sigma_cells.max(0.0))?;
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let mut lidar = Vec::new();
+    // (time µs, line, bytes) of every packet and pose, merged into `schedule` below.
+    let mut timed: Vec<(u64, Line, Range<usize>)> = Vec::new();
     // Every packet of `turns` turns, and the first of the next (it closes the last).
     for k in 0..=turns * PACKETS_PER_TURN {
         let (turn, j) = (k / PACKETS_PER_TURN, k % PACKETS_PER_TURN);
@@ -179,24 +197,32 @@ pub fn robot_input(
                 }
             };
         }
+        let at = lidar.len();
         lidar.extend_from_slice(&packet.to_bytes());
+        timed.push((t_ms * 1000, Line::Lidar, at..lidar.len()));
     }
     let mut link = host_frame(&HostMsg::Config(*config));
+    let mut schedule = vec![(Line::Link, 0..link.len())];
     // Poses from 0 until one at or after the last packet's time.
     let last_packet_us = turns * TURN_US;
     let mut t = 0;
     let mut sent = 0;
     loop {
+        let at = link.len();
         link.extend(host_frame(&HostMsg::Pose {
             t_us: t,
             pose: WirePose::from(trajectory.pose_at(t)),
         }));
+        timed.push((t, Line::Link, at..link.len()));
         sent += 1;
         if t >= last_packet_us {
             break;
         }
         t += pose_period_us;
     }
+    // At equal times the packet first: it waits for a pose at or after its own time.
+    timed.sort_by_key(|(t, line, _)| (*t, *line == Line::Link));
+    schedule.extend(timed.into_iter().map(|(_, line, r)| (line, r)));
     Ok(RobotInput {
         link,
         finish: host_frame(&HostMsg::Finish),
@@ -204,6 +230,7 @@ pub fn robot_input(
         turns: turns as u32,
         poses: sent,
         trajectory,
+        schedule,
     })
 }
 

@@ -54,3 +54,59 @@ fn firmware_in_qemu_streams_the_hosts_map() {
     let d = r.done.expect("Done");
     assert!(d.stack_used > 0 && d.stack_used < d.stack_size, "{d:?}");
 }
+
+/// The robot loop in QEMU (issue 13): simulated LD06 bytes on UART0 at 10 turns/s while the
+/// robot drives, timestamped poses on the link (UART1) at 25 Hz, two sockets written by their
+/// own threads. Every turn the firmware maps from its own lidar UART must be placed at the
+/// simulator's true sensor pose, and its streamed map must equal the firmware's library run on
+/// the host over the same two byte streams, cell for cell.
+#[test]
+fn the_robot_loop_in_qemu_maps_its_lidar_uart_like_the_host() {
+    if !ogm_tests::firmware_available("the_robot_loop_in_qemu_maps_its_lidar_uart_like_the_host") {
+        return;
+    }
+    let args = FirmwareArgs {
+        seed: 2,
+        robot: true,
+        max_scans: Some(30),
+        timeout: 120,
+        ..FirmwareArgs::default()
+    };
+    let r = run(&args).expect("host-sim firmware --robot run");
+    print_report(&r);
+    assert_eq!(
+        r.exit_code,
+        Some(0),
+        "firmware exit status (log: {:?})",
+        r.log
+    );
+    assert!(
+        r.identical(),
+        "the firmware's streamed map differs from the host's:\n{}",
+        r.mismatches.join("\n")
+    );
+    assert!(r.checks > 3 * 65_536, "too few comparisons: {}", r.checks);
+    let robot = r.robot.expect("robot report");
+    assert_eq!(robot.turns_mapped, robot.turns_sent as usize, "{robot:?}");
+    assert!(robot.turns_sent >= 30, "{robot:?}");
+    assert!(
+        robot.max_position_error_mm < 25.0,
+        "turns placed {} mm from the truth",
+        robot.max_position_error_mm
+    );
+    // Everything either line carried was read and used: no packet without a pose, none
+    // dropped, no pose out of order.
+    let c = r.counters.expect("final counters");
+    assert_eq!(c.lidar.turns, robot.turns_sent, "{c:?}");
+    assert_eq!(
+        c.lidar.bad_packets + c.lidar.packets_without_pose,
+        0,
+        "{c:?}"
+    );
+    assert_eq!(
+        c.lidar.packets_overflowed + c.lidar.poses_out_of_order,
+        0,
+        "{c:?}"
+    );
+    assert_eq!(c.lidar.poses as usize, robot.poses_sent, "{c:?}");
+}
