@@ -36,8 +36,10 @@ pub struct InverseSensorModel {
     kind: InverseModelKind,
     occ: LogOdds,
     free: LogOdds,
-    nominal_occ: f64,
-    nominal_free: f64,
+    /// The increments in nats as requested, `(occupied, free)`; `None` when they are exactly
+    /// the fixed-point ones (Hähnel's ±ln 4 = ±1024 LSB and its free scalings by `q8 / 256`), so
+    /// a model built from integers alone needs no floating point (the firmware's flash).
+    nominal: Option<(f64, f64)>,
 }
 
 impl Default for InverseSensorModel {
@@ -53,9 +55,23 @@ impl InverseSensorModel {
             kind: InverseModelKind::Beam,
             occ: LogOdds::LN_4,
             free: LogOdds(-LogOdds::LN_4.0),
-            nominal_occ: core::f64::consts::LN_2 * 2.0,
-            nominal_free: -core::f64::consts::LN_2 * 2.0,
+            nominal: None,
         }
+    }
+
+    /// [`Self::hahnel`] with its free update scaled by `q8 / 256`, in integers alone (no
+    /// floating point reaches the firmware's flash): equal to
+    /// `hahnel().with_free_scale(q8)`, errors included.
+    pub const fn hahnel_free_scaled(q8: u16) -> Result<Self> {
+        if q8 == 0 || q8 > 256 {
+            return Err(Error::InvalidModel);
+        }
+        let m = Self::hahnel();
+        // −1024 · q8 / 256 = −4 · q8: exact, in [−1024, −4].
+        Ok(InverseSensorModel {
+            free: LogOdds(m.free.0 / 256 * q8 as i16),
+            ..m
+        })
     }
 
     /// A ray model with the given occupied/free probabilities and cell prior.
@@ -97,8 +113,7 @@ impl InverseSensorModel {
             kind,
             occ,
             free,
-            nominal_occ,
-            nominal_free,
+            nominal: Some((nominal_occ, nominal_free)),
         })
     }
 
@@ -113,15 +128,24 @@ impl InverseSensorModel {
         if q8 == 256 {
             return Ok(self);
         }
-        let nominal_free = self.nominal_free * f64::from(q8) / 256.0;
-        let free = LogOdds::from_nats(nominal_free)?;
+        let scaled = i32::from(self.free.0) * i32::from(q8);
+        let (free, nominal) = match self.nominal {
+            // Exact in integers (Hähnel's −1024 LSB: every q8), and the nominal stays exact.
+            // |scaled / 256| < |free| (q8 < 256 here), so it fits an i16.
+            None if scaled % 256 == 0 => (LogOdds((scaled / 256) as i16), None),
+            _ => {
+                let (occ, free) = self.nominal_increments();
+                let nominal_free = free * f64::from(q8) / 256.0;
+                (LogOdds::from_nats(nominal_free)?, Some((occ, nominal_free)))
+            }
+        };
         // A scale of at least 1/256 keeps a free increment of at least 4 LSB away from zero.
         if free.0 >= 0 {
             return Err(Error::InvalidModel);
         }
         Ok(InverseSensorModel {
             free,
-            nominal_free,
+            nominal,
             ..self
         })
     }
@@ -142,8 +166,8 @@ impl InverseSensorModel {
     }
 
     /// The increments in nats as requested, before rounding: `(occupied, free)`.
-    pub const fn nominal_increments(&self) -> (f64, f64) {
-        (self.nominal_occ, self.nominal_free)
+    pub fn nominal_increments(&self) -> (f64, f64) {
+        self.nominal.unwrap_or_else(|| self.effective_increments())
     }
 
     /// The increments in nats the fixed-point mapper actually applies: `(occupied, free)`.
@@ -180,6 +204,37 @@ mod tests {
         assert_eq!(m.with_free_scale(0), Err(Error::InvalidModel));
         assert_eq!(m.with_free_scale(257), Err(Error::InvalidModel));
         assert!(m.with_free_scale(1).unwrap().free_increment().0 < 0);
+    }
+
+    /// The integer path (Hähnel's model, no floating point) against the float reference:
+    /// the rounded scaled nominal, for every scale; and a model whose increments are not
+    /// exact LSB multiples still takes the float path.
+    #[test]
+    fn free_scale_in_integers_matches_the_float_reference() {
+        let m = InverseSensorModel::hahnel();
+        for q8 in 1..=256u16 {
+            let nats = -2.0 * core::f64::consts::LN_2 * f64::from(q8) / 256.0;
+            let s = m.with_free_scale(q8).unwrap();
+            assert_eq!(
+                s.free_increment(),
+                LogOdds::from_nats(nats).unwrap(),
+                "q8 {q8}"
+            );
+            assert!((s.nominal_increments().1 - nats).abs() < 1e-12, "q8 {q8}");
+            assert_eq!(s.occ_increment(), LogOdds(1024));
+            assert_eq!(InverseSensorModel::hahnel_free_scaled(q8), Ok(s), "q8 {q8}");
+        }
+        for q8 in [0, 257, u16::MAX] {
+            assert_eq!(
+                InverseSensorModel::hahnel_free_scaled(q8),
+                m.with_free_scale(q8)
+            );
+        }
+        let b = InverseSensorModel::beam(0.7, 0.4, 0.5).unwrap();
+        let s = b.with_free_scale(100).unwrap();
+        let nats = b.nominal_increments().1 * 100.0 / 256.0;
+        assert_eq!(s.free_increment(), LogOdds::from_nats(nats).unwrap());
+        assert!((s.nominal_increments().1 - nats).abs() < 1e-15);
     }
 
     #[test]

@@ -326,7 +326,7 @@ impl RunConfig {
         Ok(MapperConfig {
             max_range_mm: self.max_range_mm,
             min_range_mm: self.min_range_mm,
-            model: InverseSensorModel::hahnel().with_free_scale(self.free_update_q8)?,
+            model: InverseSensorModel::hahnel_free_scaled(self.free_update_q8)?,
             ..MapperConfig::new(self.max_range_mm)
         })
     }
