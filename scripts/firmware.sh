@@ -10,6 +10,8 @@
 #                                              runner: `cd firmware && cargo run --release`)
 #   scripts/firmware.sh size                   release build; section sizes, flash and RAM use
 #   scripts/firmware.sh clippy                 clippy -D warnings on the firmware (rustup only)
+#   scripts/firmware.sh check-v6m              the firmware type-checks for thumbv6m-none-eabi
+#                                              (Cortex-M0/M0+: no compare-and-swap, no FPU)
 #   scripts/firmware.sh env                    the toolchain settings in use
 #
 # RUN_OPTS:
@@ -176,6 +178,18 @@ clippy)
         exit 0
     fi
     fw_cargo clippy --release -- -D warnings
+    ;;
+check-v6m)
+    load_env
+    if [ "$FW_TOOLCHAIN" = rustup ]; then
+        if ! rustup target list --installed | grep -qx thumbv6m-none-eabi &&
+            ! rustup target add thumbv6m-none-eabi >&2; then
+            say "SKIPPED: thumbv6m check (rustup target add thumbv6m-none-eabi failed)"
+            exit 0
+        fi
+    fi
+    # On the debian path FW_CARGO_ARGS builds `core` for the target from source.
+    fw_cargo check --release --target thumbv6m-none-eabi --bin ogm-firmware
     ;;
 env)
     load_env

@@ -34,8 +34,9 @@ cargo build -p ogm-core --no-default-features --features defmt
 step "cargo test --workspace (with the firmware in QEMU)"
 OGM_REQUIRE_FIRMWARE=1 cargo test --workspace
 
-step "firmware: clippy (rustup toolchain only) and the on-target run in QEMU"
+step "firmware: clippy (rustup toolchain only), thumbv6m check, the on-target run in QEMU"
 bash scripts/firmware.sh clippy
+bash scripts/firmware.sh check-v6m
 bash scripts/firmware.sh run
 
 step "fuzz targets, 5 s each (scripts/fuzz.sh --ci)"

@@ -17,7 +17,7 @@ mod board;
 
 mod memory;
 
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::AtomicBool;
 
 use board::{Board, Timer};
 use defmt::{error, info};
@@ -80,7 +80,7 @@ fn main() -> ! {
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     static PANICKING: AtomicBool = AtomicBool::new(false);
-    if !PANICKING.swap(true, Ordering::Relaxed) {
+    if !board::test_and_set(&PANICKING) {
         let msg = info.message().as_str().unwrap_or("(formatted message)");
         match info.location() {
             Some(l) => error!("panic: {=str} at {=str}:{=u32}", msg, l.file(), l.line()),

@@ -7,8 +7,8 @@
 //!   * `link`: a UART for the map stream / pose input (host link),
 //!   * `timer`: a free-running tick counter ([`Timer::now`], [`TICK_HZ`] ticks per second),
 //!   * `core`: the Cortex-M core peripherals (NVIC, SysTick, …);
-//! * the UARTs implement `embedded_io::{Read, Write, ReadReady, WriteReady}` (blocking, polling)
-//!   plus a non-blocking `try_read_byte`;
+//! * the UARTs implement `embedded_io::{Read, Write, ReadReady, WriteReady}` (receive through
+//!   an interrupt-filled [`RxRing`], transmit blocking) plus a non-blocking `try_read_byte`;
 //! * [`exit`]`(code) -> !`: end the program (QEMU: semihosting exit; a real board would reset);
 //! * the defmt global logger and the defmt timestamp (QEMU: semihosting stdout).
 //!
@@ -25,7 +25,7 @@
 #![allow(dead_code)]
 
 use core::cell::UnsafeCell;
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 #[cfg(feature = "mps2-an386")]
 mod mps2_an386;
@@ -69,6 +69,16 @@ impl Reg {
     }
 }
 
+/// Sets `flag` and returns whether it was already set: `AtomicBool::swap` without the
+/// compare-and-swap instructions thumbv6m (Cortex-M0/M0+) lacks, by a critical section.
+pub fn test_and_set(flag: &AtomicBool) -> bool {
+    cortex_m::interrupt::free(|_| {
+        let was = flag.load(Ordering::Relaxed);
+        flag.store(true, Ordering::Relaxed);
+        was
+    })
+}
+
 /// A `static` buffer that is handed out at most once as `&'static mut T`: for the big map arrays,
 /// which must neither live on the stack nor be built on it (`cortex_m::singleton!` constructs its
 /// value on the stack first, which a 128 KiB grid would overflow).
@@ -81,7 +91,7 @@ pub struct StaticBuf<T> {
 }
 
 // SAFETY: the only access to `value` is through `take`, which hands out one `&mut T` ever
-// (guarded by the atomic swap), so sharing the `StaticBuf` between contexts is sound as long as
+// (guarded by `test_and_set`), so sharing the `StaticBuf` between contexts is sound as long as
 // the `&mut T` itself may move to another context (`T: Send`).
 unsafe impl<T: Send> Sync for StaticBuf<T> {}
 
@@ -98,10 +108,10 @@ impl<T> StaticBuf<T> {
     // `&self -> &mut T` is sound here: the atomic flag makes the `&mut` unique (as in static_cell).
     #[allow(clippy::mut_from_ref)]
     pub fn take(&'static self) -> Option<&'static mut T> {
-        if self.taken.swap(true, Ordering::AcqRel) {
+        if test_and_set(&self.taken) {
             return None;
         }
-        // SAFETY: the swap above returns `false` exactly once, so this is the only reference
+        // SAFETY: `test_and_set` above returns `false` exactly once, so this is the only reference
         // to `value` that is ever created.
         Some(unsafe { &mut *self.value.get() })
     }
@@ -133,10 +143,10 @@ impl<T> StaticSlot<T> {
     // `&self -> &mut T` is sound here: the atomic flag makes the `&mut` unique.
     #[allow(clippy::mut_from_ref)]
     pub fn put_with(&'static self, make: impl FnOnce() -> T) -> Option<&'static mut T> {
-        if self.taken.swap(true, Ordering::AcqRel) {
+        if test_and_set(&self.taken) {
             return None;
         }
-        // SAFETY: the swap above returns `false` exactly once, so this is the only reference
+        // SAFETY: `test_and_set` above returns `false` exactly once, so this is the only reference
         // to the slot that is ever created; `write` initialises it before it is returned.
         Some(unsafe { (*self.value.get()).write(make()) })
     }
@@ -166,18 +176,90 @@ impl<T, const N: usize> StaticArray<T, N> {
     // `&self -> &mut T` is sound here: the atomic flag makes the `&mut` unique.
     #[allow(clippy::mut_from_ref)]
     pub fn take_filled(&'static self, fill: impl Fn() -> T) -> Option<&'static mut [T; N]> {
-        if self.taken.swap(true, Ordering::AcqRel) {
+        if test_and_set(&self.taken) {
             return None;
         }
         let first = self.value.get().cast::<T>();
         for i in 0..N {
             // SAFETY: `MaybeUninit<[T; N]>` has the layout of `[T; N]`, so element `i < N` is
-            // in bounds; nothing else can access the array (the swap above succeeds once), and
+            // in bounds; nothing else can access the array (`test_and_set` above returns `false` once), and
             // `write` does not read or drop the uninitialised old value.
             unsafe { first.add(i).write(fill()) };
         }
         // SAFETY: all N elements were initialised above; this is the only reference.
         Some(unsafe { &mut *self.value.get().cast::<[T; N]>() })
+    }
+}
+
+/// A single-producer single-consumer byte ring for a UART's receive side: the UART's receive
+/// interrupt pushes, the main loop pops. `N` is a power of two (checked at compile time), so
+/// the free-running indices wrap correctly and a slot is `index % N`.
+///
+/// Lock-free on any Cortex-M (atomic loads and stores only, no read-modify-write, so thumbv6m
+/// too): the producer owns `head` and the slots from `head` on, the consumer owns `tail`; each
+/// publishes with a release store what the other reads with an acquire load.
+pub struct RxRing<const N: usize> {
+    buf: UnsafeCell<[u8; N]>,
+    /// Bytes pushed, ever (mod 2^32): written by the producer only.
+    head: AtomicUsize,
+    /// Bytes popped, ever: written by the consumer only.
+    tail: AtomicUsize,
+}
+
+// SAFETY: one producer (the interrupt handler) and one consumer (the main loop) share the ring
+// through the atomics: a slot is written only while it is outside `[tail, head)` and read only
+// while inside it, so the two never access the same byte at once.
+unsafe impl<const N: usize> Sync for RxRing<N> {}
+
+impl<const N: usize> RxRing<N> {
+    const POWER_OF_TWO: () = assert!(N.is_power_of_two());
+
+    /// An empty ring.
+    pub const fn new() -> Self {
+        #[allow(clippy::let_unit_value)]
+        let () = Self::POWER_OF_TWO;
+        RxRing {
+            buf: UnsafeCell::new([0; N]),
+            head: AtomicUsize::new(0),
+            tail: AtomicUsize::new(0),
+        }
+    }
+
+    /// Producer side (the receive interrupt only): stores `byte`; `false` if the ring is full.
+    pub fn push(&self, byte: u8) -> bool {
+        let head = self.head.load(Ordering::Relaxed);
+        if head.wrapping_sub(self.tail.load(Ordering::Acquire)) >= N {
+            return false;
+        }
+        // SAFETY: `head % N < N` is in the buffer, and the slot is outside `[tail, head)`, so
+        // the consumer does not read it until the release store below publishes it.
+        unsafe { self.buf.get().cast::<u8>().add(head % N).write(byte) };
+        self.head.store(head.wrapping_add(1), Ordering::Release);
+        true
+    }
+
+    /// Consumer side (the main loop only): the oldest byte, if any.
+    pub fn pop(&self) -> Option<u8> {
+        let tail = self.tail.load(Ordering::Relaxed);
+        if self.head.load(Ordering::Acquire) == tail {
+            return None;
+        }
+        // SAFETY: `tail % N < N`, and the slot is inside `[tail, head)`: published by the
+        // producer (acquire above), which does not write it again until `tail` moves past it.
+        let byte = unsafe { self.buf.get().cast::<u8>().add(tail % N).read() };
+        self.tail.store(tail.wrapping_add(1), Ordering::Release);
+        Some(byte)
+    }
+
+    /// Producer side: whether one more byte fits.
+    pub fn has_room(&self) -> bool {
+        let used = self.head.load(Ordering::Relaxed);
+        used.wrapping_sub(self.tail.load(Ordering::Acquire)) < N
+    }
+
+    /// Whether no byte is waiting.
+    pub fn is_empty(&self) -> bool {
+        self.head.load(Ordering::Acquire) == self.tail.load(Ordering::Relaxed)
     }
 }
 
@@ -194,17 +276,21 @@ extern "C" {
     static _stack_start: u32;
 }
 
-/// Paints the unused part of the stack again (everything more than 256 bytes below the current
-/// stack pointer), so that [`stack_usage`] afterwards reports the high-water mark from here on:
+/// Room [`repaint_stack`] leaves below the stack pointer for an interrupt handler's frame.
+const REPAINT_MARGIN: usize = 1024;
+
+/// Paints the unused part of the stack again (everything more than [`REPAINT_MARGIN`] bytes
+/// below the current stack pointer), so that [`stack_usage`] afterwards reports the high-water mark from here on:
 /// e.g. of the mapping loop, without the one-off peak of building the sampler.
 pub fn repaint_stack() {
     let lo = core::ptr::addr_of!(_stack_end) as usize;
     let sp = cortex_m::register::msp::read() as usize;
     let mut p = lo;
-    while p + 256 < sp {
-        // SAFETY: `[lo, sp - 256)` is stack RAM below the current stack pointer: no live frame
-        // is there (the AAPCS has no red zone and this firmware enables no interrupts whose
-        // handlers could be running on it), so overwriting it with the paint value is harmless.
+    while p + REPAINT_MARGIN < sp {
+        // SAFETY: `[lo, sp - REPAINT_MARGIN)` is stack RAM below the current stack pointer: no
+        // live frame is there (the AAPCS has no red zone, and a receive interrupt taken during
+        // this loop stacks less than the margin below `sp`: its exception frame, 104 bytes with
+        // the FPU context, plus a handler of a few dozen), so painting it is harmless.
         unsafe { (p as *mut u32).write_volatile(cortex_m_rt::STACK_PAINT_VALUE) };
         p += 4;
     }

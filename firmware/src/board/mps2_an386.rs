@@ -12,7 +12,7 @@
 //!   `SYS_EXIT` (QEMU exits with that status). Run QEMU with
 //!   `-semihosting-config enable=on,target=native`.
 
-use super::Reg;
+use super::{Reg, RxRing};
 use core::sync::atomic::{AtomicBool, Ordering};
 use defmt_semihosting as _; // the global defmt logger
 
@@ -36,9 +36,9 @@ const LINK_BAUD: u32 = 921_600;
 /// The board's peripherals, handed out once.
 pub struct Board {
     /// UART0: the range sensor.
-    pub lidar: Uart,
+    pub lidar: Uart<LIDAR_RX_RING>,
     /// UART1: the host link (map stream out, poses in).
-    pub link: Uart,
+    pub link: Uart<LINK_RX_RING>,
     /// Timer 0, free-running.
     pub timer: Timer,
     /// Cortex-M core peripherals.
@@ -50,19 +50,29 @@ impl Board {
     /// before (peripherals have a single owner).
     pub fn take() -> Option<Board> {
         static TAKEN: AtomicBool = AtomicBool::new(false);
-        if TAKEN.swap(true, Ordering::AcqRel) {
+        if super::test_and_set(&TAKEN) {
             return None;
         }
         let core = cortex_m::Peripherals::take()?;
-        // SAFETY: these are the CMSDK UART0/UART1/timer0 register blocks of mps2-an386, and the
-        // `TAKEN` guard makes this the only place that ever creates drivers for them.
+        // SAFETY: these are the CMSDK UART0/UART1/timer0 register blocks of mps2-an386 with
+        // their receive interrupts, and the `TAKEN` guard makes this the only place that ever
+        // creates drivers for them.
         let (lidar, link, timer) = unsafe {
             (
-                Uart::new(UART0_BASE, LIDAR_BAUD),
-                Uart::new(UART1_BASE, LINK_BAUD),
+                Uart::new(UART0_BASE, &LIDAR_RX, Irq::Uart0Rx, LIDAR_BAUD),
+                Uart::new(UART1_BASE, &LINK_RX, Irq::Uart1Rx, LINK_BAUD),
                 Timer::new(TIMER0_BASE),
             )
         };
+        for irq in [Irq::Uart0Rx, Irq::Uart1Rx] {
+            // SAFETY: unmasking can break a critical section only if the handler shares state
+            // with one; the receive handlers touch their ring (lock-free) and their UART's
+            // registers, whose one read-modify-write in thread mode (`Uart::resume`) runs with
+            // interrupts off.
+            unsafe { cortex_m::peripheral::NVIC::unmask(irq) };
+            // Bytes that arrived before the unmask are taken now.
+            cortex_m::peripheral::NVIC::pend(irq);
+        }
         Some(Board {
             lidar,
             link,
@@ -84,8 +94,10 @@ pub fn exit(code: i32) -> ! {
 const UART_DATA: usize = 0x00;
 /// STATE: b0 TXFULL, b1 RXFULL, b2 TX overrun, b3 RX overrun (write 1 to clear overruns).
 const UART_STATE: usize = 0x04;
-/// CTRL: b0 TX_EN, b1 RX_EN (interrupt enables above, unused: polling).
+/// CTRL: b0 TX_EN, b1 RX_EN, b2 TX interrupt enable, b3 RX interrupt enable.
 const UART_CTRL: usize = 0x08;
+/// INTSTATUS on reads, INTCLEAR on writes: b0 TX, b1 RX, b2 TX overrun, b3 RX overrun.
+const UART_INTCLEAR: usize = 0x0C;
 /// BAUDDIV: SYSCLK / baud, at least 16.
 const UART_BAUDDIV: usize = 0x10;
 
@@ -94,13 +106,92 @@ const STATE_RXFULL: u32 = 1 << 1;
 const STATE_RX_OVERRUN: u32 = 1 << 3;
 const CTRL_TX_EN: u32 = 1 << 0;
 const CTRL_RX_EN: u32 = 1 << 1;
+const CTRL_RX_INTEN: u32 = 1 << 3;
+const INT_RX: u32 = 1 << 1;
 
-/// A CMSDK APB UART, polled. One-byte TX and RX buffers; QEMU holds host input back while RXFULL
-/// is set, so polling loses nothing there (a real UART at 230400 baud would need an interrupt or
-/// DMA ring buffer: see [`UartError::Overrun`]).
-pub struct Uart {
+/// Receive ring of the lidar's UART: 4 KiB is ~180 ms of an LD06 at 230 400 baud, longer than
+/// the main loop ever leaves it (a scan's insertion and its tiles on the link).
+pub const LIDAR_RX_RING: usize = 4096;
+/// Receive ring of the host link (settings and 25 Hz poses: a few hundred bytes per second).
+pub const LINK_RX_RING: usize = 1024;
+
+/// A UART's receive side as its interrupt sees it. All zero at reset, so it lives in `.bss`
+/// (a non-zero field would put the whole ring's initial value into flash).
+struct RxLine<const N: usize> {
+    ring: RxRing<N>,
+    /// The handler found the ring full and turned its interrupt off (the byte stays in DATA:
+    /// QEMU then holds the rest back, hardware counts an overrun); the reader turns it on again.
+    paused: AtomicBool,
+}
+
+impl<const N: usize> RxLine<N> {
+    const fn new() -> Self {
+        RxLine {
+            ring: RxRing::new(),
+            paused: AtomicBool::new(false),
+        }
+    }
+
+    /// The receive interrupt of the UART at `base`: moves what the UART holds into the ring;
+    /// when the ring is full, leaves the byte in DATA and pauses (the reader resumes it).
+    fn on_interrupt(&self, base: usize) {
+        let (data, state, ctrl, intclear) = uart_regs(base);
+        intclear.write(INT_RX);
+        while state.read() & STATE_RXFULL != 0 {
+            if !self.ring.has_room() {
+                ctrl.write(ctrl.read() & !CTRL_RX_INTEN);
+                self.paused.store(true, Ordering::Release);
+                return;
+            }
+            // Cannot fail: there is room, and only this handler pushes.
+            let _ = self.ring.push(data.read() as u8);
+        }
+    }
+}
+
+/// DATA, STATE, CTRL and INTCLEAR of the UART at `base` (`UART0_BASE` or `UART1_BASE`).
+fn uart_regs(base: usize) -> (Reg, Reg, Reg, Reg) {
+    debug_assert!(base == UART0_BASE || base == UART1_BASE);
+    // SAFETY: callers pass one of this board's CMSDK UART blocks; the offsets are its
+    // registers.
+    unsafe {
+        (
+            Reg::at(base + UART_DATA),
+            Reg::at(base + UART_STATE),
+            Reg::at(base + UART_CTRL),
+            Reg::at(base + UART_INTCLEAR),
+        )
+    }
+}
+
+static LIDAR_RX: RxLine<LIDAR_RX_RING> = RxLine::new();
+static LINK_RX: RxLine<LINK_RX_RING> = RxLine::new();
+
+/// The receive interrupts of UART0 and UART1 (mps2-an386: UART i's RX is IRQ 2·i, TX 2·i + 1).
+#[derive(Clone, Copy)]
+enum Irq {
+    Uart0Rx = 0,
+    Uart1Rx = 2,
+}
+
+// SAFETY: the numbers are the board's interrupt lines (QEMU hw/arm/mps2.c: `uartirq[] = {0, 2,
+// ...}` are the RX lines), all below the NVIC's line count.
+unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
+    fn number(self) -> u16 {
+        self as u16
+    }
+}
+
+/// A CMSDK APB UART: receive by interrupt into a ring ([`RxRing`]), so no byte is lost while the
+/// main loop maps or samples; transmit polled. When the ring fills, the interrupt pauses (the
+/// byte waits in DATA) until the reader has made room: under QEMU nothing is lost then, on
+/// hardware the UART counts an overrun ([`UartError::Overrun`]).
+pub struct Uart<const N: usize> {
     data: Reg,
     state: Reg,
+    ctrl: Reg,
+    line: &'static RxLine<N>,
+    irq: Irq,
 }
 
 /// UART errors.
@@ -125,28 +216,29 @@ impl embedded_io::Error for UartError {
     }
 }
 
-impl Uart {
+impl<const N: usize> Uart<N> {
     /// # Safety
-    /// `base` must be the register block of a CMSDK APB UART that no other code uses.
-    unsafe fn new(base: usize, baud: u32) -> Self {
-        // SAFETY: caller's contract; the offsets are the CMSDK UART register map.
-        let (data, state, ctrl, bauddiv) = unsafe {
-            (
-                Reg::at(base + UART_DATA),
-                Reg::at(base + UART_STATE),
-                Reg::at(base + UART_CTRL),
-                Reg::at(base + UART_BAUDDIV),
-            )
-        };
+    /// `base` must be a CMSDK APB UART of this board with no other driver, `line` the ring its
+    /// receive interrupt `irq` fills (see `DefaultHandler`).
+    unsafe fn new(base: usize, line: &'static RxLine<N>, irq: Irq, baud: u32) -> Self {
+        let (data, state, ctrl, _) = uart_regs(base);
+        // SAFETY: caller's contract; BAUDDIV is a register of the same block.
+        let bauddiv = unsafe { Reg::at(base + UART_BAUDDIV) };
         bauddiv.write((SYSCLK_HZ / baud).max(16));
-        ctrl.write(CTRL_TX_EN | CTRL_RX_EN);
+        ctrl.write(CTRL_TX_EN | CTRL_RX_EN | CTRL_RX_INTEN);
         // QEMU's CMSDK UART asks its character backend for input only when DATA is read (that
         // read calls `qemu_chr_fe_accept_input`); enabling RX alone does not. A backend that
         // was polled while RX was still disabled at reset (a socket that connected before the
         // guest ran) would otherwise never deliver a byte. On hardware this read just
         // discards a stale byte.
         let _ = data.read();
-        Uart { data, state }
+        Uart {
+            data,
+            state,
+            ctrl,
+            line,
+            irq,
+        }
     }
 
     /// Transmits one byte, waiting while the transmit buffer is full.
@@ -159,11 +251,22 @@ impl Uart {
     /// The next received byte if one is waiting (never blocks).
     #[inline]
     pub fn try_read_byte(&mut self) -> Option<u8> {
-        if self.state.read() & STATE_RXFULL != 0 {
-            Some(self.data.read() as u8)
-        } else {
-            None
+        let byte = self.line.ring.pop()?;
+        if self.line.paused.load(Ordering::Acquire) {
+            self.resume();
         }
+        Some(byte)
+    }
+
+    /// The ring has room again: the receive interrupt back on, and taken once now for the byte
+    /// that waited in DATA (enabling it does not raise it again).
+    #[cold]
+    fn resume(&mut self) {
+        cortex_m::interrupt::free(|_| {
+            self.line.paused.store(false, Ordering::Release);
+            self.ctrl.write(self.ctrl.read() | CTRL_RX_INTEN);
+        });
+        cortex_m::peripheral::NVIC::pend(self.irq);
     }
 
     /// Waits for the next received byte.
@@ -185,11 +288,11 @@ impl Uart {
     }
 }
 
-impl embedded_io::ErrorType for Uart {
+impl<const N: usize> embedded_io::ErrorType for Uart<N> {
     type Error = UartError;
 }
 
-impl embedded_io::Read for Uart {
+impl<const N: usize> embedded_io::Read for Uart<N> {
     /// Blocks until at least one byte is there, then returns what is available without waiting.
     fn read(&mut self, buf: &mut [u8]) -> Result<usize, UartError> {
         let Some((first, rest)) = buf.split_first_mut() else {
@@ -211,13 +314,13 @@ impl embedded_io::Read for Uart {
     }
 }
 
-impl embedded_io::ReadReady for Uart {
+impl<const N: usize> embedded_io::ReadReady for Uart<N> {
     fn read_ready(&mut self) -> Result<bool, UartError> {
-        Ok(self.state.read() & STATE_RXFULL != 0)
+        Ok(!self.line.ring.is_empty())
     }
 }
 
-impl embedded_io::Write for Uart {
+impl<const N: usize> embedded_io::Write for Uart<N> {
     /// Blocking: transmits the whole buffer.
     fn write(&mut self, buf: &[u8]) -> Result<usize, UartError> {
         for &b in buf {
@@ -233,7 +336,7 @@ impl embedded_io::Write for Uart {
     }
 }
 
-impl embedded_io::WriteReady for Uart {
+impl<const N: usize> embedded_io::WriteReady for Uart<N> {
     fn write_ready(&mut self) -> Result<bool, UartError> {
         Ok(self.state.read() & STATE_TXFULL == 0)
     }
@@ -349,9 +452,17 @@ unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
     exit(3)
 }
 
-/// Any interrupt without a handler: log it and exit with status 4.
+/// Every interrupt comes here (this board has no peripheral-access crate, so no vector table
+/// of named handlers): the UARTs' receive interrupts go to their rings; anything else is logged
+/// and ends the program with status 4.
 #[cortex_m_rt::exception]
 unsafe fn DefaultHandler(irqn: i16) {
-    defmt::error!("unhandled exception/interrupt {=i16}", irqn);
-    exit(4)
+    match irqn {
+        0 => LIDAR_RX.on_interrupt(UART0_BASE),
+        2 => LINK_RX.on_interrupt(UART1_BASE),
+        _ => {
+            defmt::error!("unhandled exception/interrupt {=i16}", irqn);
+            exit(4)
+        }
+    }
 }
