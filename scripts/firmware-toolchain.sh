@@ -11,8 +11,9 @@
 #           target itself: /usr/bin/cargo with RUSTC=/usr/bin/rustc RUSTC_BOOTSTRAP=1 and
 #           `-Zbuild-std=core` (passed on the command line by scripts/firmware.sh, never in
 #           firmware/.cargo/config.toml, which would break (a)/(b)).
-# Always: qemu-system-arm and ld.lld (apt), and defmt-print (cargo install, into
-# firmware/target/tools) to decode the firmware's defmt log.
+# Always: qemu-system-arm and ld.lld (apt), defmt-print (cargo install, into
+# firmware/target/tools) to decode the firmware's defmt log, and flip-link (same place), the
+# stack guard every firmware image is linked with.
 #
 # Environment:
 #   FIRMWARE_TOOLCHAIN=rustup|debian   force a path (debian is what a machine without the rustup
@@ -25,6 +26,7 @@ FW="$ROOT/firmware"
 TARGET=thumbv7em-none-eabihf
 ENV_FILE="$FW/target/toolchain.env"
 TOOLS="$FW/target/tools"
+FLIP_LINK_VERSION=0.1.12
 DEFMT_PRINT_VERSION=1.2.0 # defmt-print 1.x decodes defmt 1.x (wire format "4"); keep majors equal
 
 say() { printf '[firmware-toolchain] %s\n' "$*"; }
@@ -142,6 +144,25 @@ else
     fi
 fi
 
+# --- flip-link ------------------------------------------------------------------------------------
+# The stack guard of every board: flip-link relinks the image with the stack at the bottom of RAM,
+# below .data/.bss, so an overflow faults (hitting the end of RAM) instead of silently
+# overwriting the map. It wraps the real linker (FLIP_LINK_LINKER = ld.lld).
+FLIP_LINK="$TOOLS/bin/flip-link"
+if [ -x "$FLIP_LINK" ] && "$FLIP_LINK" --version 2>/dev/null | grep -q " $FLIP_LINK_VERSION"; then
+    :
+else
+    host_cargo="$(command -v cargo || echo /usr/bin/cargo)"
+    say "installing flip-link $FLIP_LINK_VERSION into ${TOOLS#"$ROOT"/} (one-off, < 1 min)"
+    mkdir -p "$TOOLS"
+    start=$SECONDS
+    env -u RUSTFLAGS -u CARGO_ENCODED_RUSTFLAGS -u CARGO_BUILD_TARGET -u CARGO_TARGET_DIR \
+        "$host_cargo" install --locked --quiet "flip-link@$FLIP_LINK_VERSION" --root "$TOOLS" \
+        >"$TOOLS/flip-link-install.log" 2>&1 ||
+        die "cargo install flip-link failed (log: ${TOOLS#"$ROOT"/}/flip-link-install.log)"
+    say "flip-link installed in $((SECONDS - start)) s"
+fi
+
 # --- record the choice --------------------------------------------------------------------------
 mkdir -p "$FW/target"
 tmp="$ENV_FILE.tmp.$$"
@@ -160,6 +181,7 @@ FW_QEMU=$QEMU
 FW_LLD=$LLD
 FW_SIZE=$SIZE_BIN
 FW_DEFMT_PRINT=$DEFMT_PRINT
+FW_FLIP_LINK=$FLIP_LINK
 EOF
 mv "$tmp" "$ENV_FILE"
 say "toolchain: $choice (rustc $RUSTC_VERSION) — $how"

@@ -8,7 +8,8 @@
 #   3. ogm-core as a library without default features and with defmt (no_std, no alloc)
 #   4. the host workspace tests, including the firmware-in-QEMU integration tests
 #      (OGM_REQUIRE_FIRMWARE=1: they fail instead of skipping if QEMU or the toolchain is missing)
-#   5. the firmware's on-target self test in QEMU
+#   5. the firmware's on-target self test in QEMU, the nRF52840-DK binary built and sized, and a
+#      thumbv6m type-check
 #   6. every fuzz target for a few seconds (scripts/fuzz.sh --ci: nightly + cargo-fuzz, installed
 #      into ~/.cache/ogm/tools if missing; skipped with a message when there is no nightly)
 set -euo pipefail
@@ -34,8 +35,10 @@ cargo build -p ogm-core --no-default-features --features defmt
 step "cargo test --workspace (with the firmware in QEMU)"
 OGM_REQUIRE_FIRMWARE=1 cargo test --workspace
 
-step "firmware: clippy (rustup toolchain only), thumbv6m check, the on-target run in QEMU"
+step "firmware: clippy (rustup toolchain only), nRF52840-DK build and sizes, thumbv6m check, the on-target run in QEMU"
 bash scripts/firmware.sh clippy
+FIRMWARE_BOARD=nrf52840 bash scripts/firmware.sh clippy
+FIRMWARE_BOARD=nrf52840 bash scripts/firmware.sh size
 bash scripts/firmware.sh check-v6m
 bash scripts/firmware.sh run
 

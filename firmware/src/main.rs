@@ -17,12 +17,11 @@ mod board;
 
 mod memory;
 
-use core::sync::atomic::AtomicBool;
-
-use board::{Board, Timer};
-use defmt::{error, info};
+use board::Board;
+use defmt::info;
 
 /// `cortex_m::asm::delay` argument used to check the tick ↔ instruction relation at boot.
+#[cfg(feature = "mps2-an386")]
 const CALIBRATION_CYCLES: u32 = 1_000_000;
 
 #[cortex_m_rt::entry]
@@ -36,20 +35,8 @@ fn main() -> ! {
         board::BOARD_NAME
     );
 
-    // `asm::delay(n)` runs exactly 2·(n + 1) instructions (a `subs; bne` loop, n + 1 times).
-    // Under QEMU with `-icount shift=0` every instruction is 1 ns, i.e. 1/40 tick, so the
-    // measured time must come out at 1000 ps per instruction (±1 tick); without icount the ticks
-    // are host wall-clock time and the ratio is meaningless.
-    let t0 = board.timer.now();
-    cortex_m::asm::delay(CALIBRATION_CYCLES);
-    let cal_ns = Timer::ticks_to_ns(board.timer.now().wrapping_sub(t0));
-    let cal_insns = 2 * (u64::from(CALIBRATION_CYCLES) + 1);
-    info!(
-        "timer: {=u64} instructions took {=u64} ns = {=u64} ps per instruction (1000 under -icount shift=0)",
-        cal_insns,
-        cal_ns,
-        (cal_ns * 1000 + cal_insns / 2) / cal_insns
-    );
+    #[cfg(feature = "mps2-an386")]
+    calibrate(&board.timer);
 
     let Some(memory) = memory::take() else {
         defmt::panic!("buffers taken twice");
@@ -73,12 +60,34 @@ fn main() -> ! {
     board::exit(code)
 }
 
+/// QEMU's instruction clock: the timer against a delay loop of known length.
+#[cfg(feature = "mps2-an386")]
+fn calibrate(timer: &board::Timer) {
+    // `asm::delay(n)` runs exactly 2·(n + 1) instructions (a `subs; bne` loop, n + 1 times).
+    // Under QEMU with `-icount shift=0` every instruction is 1 ns, i.e. 1/40 tick, so the
+    // measured time must come out at 1000 ps per instruction (±1 tick); without icount the ticks
+    // are host wall-clock time and the ratio is meaningless.
+    let t0 = timer.now();
+    cortex_m::asm::delay(CALIBRATION_CYCLES);
+    let cal_ns = board::Timer::ticks_to_ns(timer.now().wrapping_sub(t0));
+    let cal_insns = 2 * (u64::from(CALIBRATION_CYCLES) + 1);
+    info!(
+        "timer: {=u64} instructions took {=u64} ns = {=u64} ps per instruction (1000 under -icount shift=0)",
+        cal_insns,
+        cal_ns,
+        (cal_ns * 1000 + cal_insns / 2) / cal_insns
+    );
+}
+
 /// Logs the panic with defmt and exits with status 101 (like a Rust test that panicked), so a
 /// QEMU run fails fast instead of hanging until its timeout. Only static panic messages and the
 /// location are logged: formatting arbitrary messages would pull `core::fmt` (~3.5 KiB of
 /// flash) into the image, and ogm-core does not panic on input anyway.
+#[cfg(feature = "mps2-an386")]
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
+    use core::sync::atomic::AtomicBool;
+    use defmt::error;
     static PANICKING: AtomicBool = AtomicBool::new(false);
     if !board::test_and_set(&PANICKING) {
         let msg = info.message().as_str().unwrap_or("(formatted message)");

@@ -348,8 +348,17 @@ impl Ld06Parser {
             .counters
             .garbage_bytes
             .saturating_add(p.saturating_sub(1) as u32);
-        self.buf.copy_within(p..n, 0);
-        self.len = n - p;
+        // Element by element rather than `copy_within(p..n, 0)`: the compiler cannot see that
+        // `p <= n`, and its range check would pull a panic path (and `core::fmt`, ~3 KiB of
+        // flash) into the firmware.
+        let kept = n.saturating_sub(p);
+        for i in 0..kept {
+            let b = self.buf.get(p + i).copied().unwrap_or(0);
+            if let Some(slot) = self.buf.get_mut(i) {
+                *slot = b;
+            }
+        }
+        self.len = kept;
     }
 }
 

@@ -33,8 +33,16 @@ mod mps2_an386;
 #[allow(unused_imports)]
 pub use mps2_an386::{exit, uptime_us, Board, Timer, Uart, UartError, BOARD_NAME, TICK_HZ};
 
-#[cfg(not(feature = "mps2-an386"))]
-compile_error!("select exactly one board feature (e.g. `--features mps2-an386`)");
+#[cfg(feature = "nrf52840")]
+mod nrf52840;
+#[cfg(feature = "nrf52840")]
+#[allow(unused_imports)]
+pub use nrf52840::{exit, uptime_us, Board, Timer, Uart, UartError, BOARD_NAME, TICK_HZ};
+
+#[cfg(not(any(feature = "mps2-an386", feature = "nrf52840")))]
+compile_error!("select a board feature (`mps2-an386`, the default, or `nrf52840`)");
+#[cfg(all(feature = "mps2-an386", feature = "nrf52840"))]
+compile_error!("select exactly one board feature: add `--no-default-features` for `nrf52840`");
 
 /// A memory-mapped 32-bit register, accessed with volatile loads and stores.
 ///
