@@ -19,6 +19,7 @@ pub mod metrics;
 pub mod noise;
 pub mod prior;
 pub mod progress;
+pub mod recording;
 pub mod render;
 pub mod report;
 pub mod robot;

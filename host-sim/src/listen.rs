@@ -97,6 +97,10 @@ pub struct ListenArgs {
     /// Print the default settings as a `--send` line and exit.
     #[arg(long)]
     pub print_config: bool,
+    /// Also record the session for Foxglove Studio: both maps at every save, the robot's pose
+    /// at every scan, into this MCAP file (replaced; `host_sim::recording`).
+    #[arg(long)]
+    pub mcap: Option<PathBuf>,
 }
 
 impl ListenArgs {
@@ -115,6 +119,7 @@ impl ListenArgs {
             fresh: false,
             quiet: false,
             print_config: false,
+            mcap: None,
         }
     }
 }
@@ -282,6 +287,8 @@ pub struct Listener {
     /// Warned that tiles arrive before any `Hello`.
     warned_no_hello: bool,
     dirty: bool,
+    /// `--mcap`: the session being recorded.
+    recording: Option<crate::recording::Recording>,
 }
 
 impl Default for Listener {
@@ -304,6 +311,64 @@ impl Listener {
             resync_from: None,
             warned_no_hello: false,
             dirty: false,
+            recording: None,
+        }
+    }
+
+    /// Records from now on into the MCAP file `path` (replaced), starting with the map as it
+    /// stands (a resumed capture's).
+    pub fn record_to(&mut self, path: &Path) -> anyhow::Result<()> {
+        self.recording = Some(crate::recording::Recording::create(path)?);
+        self.record_maps();
+        Ok(())
+    }
+
+    /// Closes the recording (summary and index written); its path, if there was one.
+    pub fn finish_recording(&mut self) -> anyhow::Result<Option<PathBuf>> {
+        self.recording.take().map(|r| r.finish()).transpose()
+    }
+
+    /// Both layers into the recording, if any. A write error ends the recording with a warning
+    /// (the maps on disk are unaffected).
+    fn record_maps(&mut self) {
+        let Some(map) = self.map.as_ref() else { return };
+        let (width, height) = (map.width, map.height);
+        let known: Vec<bool> = (0..width * height)
+            .map(|i| map.log_odds.get(i).is_some_and(|&l| l != 0))
+            .collect();
+        let (cell_m, origin_m) = match &self.stats.config {
+            Some(c) if c.cell_mm > 0 => (
+                f64::from(c.cell_mm) / 1000.0,
+                (
+                    f64::from(c.origin_x_mm) / 1000.0,
+                    f64::from(c.origin_y_mm) / 1000.0,
+                ),
+            ),
+            _ => (0.05, (0.0, 0.0)),
+        };
+        let t = crate::recording::now_ns();
+        for (marginals, layer) in [(true, MapLayer::Marginals), (false, MapLayer::LogOdds)] {
+            let Some(probs) = self.probabilities(layer) else {
+                continue;
+            };
+            let cells: Vec<Option<f64>> = probs
+                .iter()
+                .zip(&known)
+                .map(|(&p, &k)| k.then_some(p))
+                .collect();
+            let frame = crate::recording::GridFrame {
+                width,
+                height,
+                cell_m,
+                origin_m,
+                cells: &cells,
+            };
+            if let Some(r) = self.recording.as_mut() {
+                if let Err(e) = r.grid(marginals, &frame, t) {
+                    eprintln!("warning: {e:#}; recording stopped");
+                    self.recording = None;
+                }
+            }
         }
     }
 
@@ -486,6 +551,15 @@ impl Listener {
             }
             DeviceEvent::Scan(r) => {
                 self.stats.scans_seen += 1;
+                if let Some(rec) = self.recording.as_mut() {
+                    let p = r.pose;
+                    let heading = f64::from(p.heading) * std::f64::consts::TAU / 65_536.0;
+                    let (x, y) = (f64::from(p.x_mm) / 1000.0, f64::from(p.y_mm) / 1000.0);
+                    if let Err(e) = rec.pose(x, y, heading, crate::recording::now_ns()) {
+                        notices.push(Notice::Warning(format!("{e:#}; recording stopped")));
+                        self.recording = None;
+                    }
+                }
                 let expected = self.stats.last_seq.map_or(0, |s| s.wrapping_add(1));
                 if r.seq > expected {
                     let gap = Gap {
@@ -619,6 +693,7 @@ impl Listener {
                 rename(&format!("{stem}.{ext}"))?;
             }
         }
+        self.record_maps();
         let json = serde_json::to_string_pretty(&self.stats)?;
         std::fs::write(tmp.join(STATUS_FILE), json + "\n")
             .with_context(|| format!("{}: cannot write", tmp.display()))?;
@@ -1142,6 +1217,9 @@ pub fn run(args: &ListenArgs, ctl: Arc<Control>) -> anyhow::Result<ListenStats> 
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create directory", args.out.display()))?;
     let mut l = Listener::with_capture(&capture, args.fresh)?;
+    if let Some(path) = &args.mcap {
+        l.record_to(path)?;
+    }
     let mut con = Console {
         quiet: args.quiet,
         tty: std::io::stderr().is_terminal(),
@@ -1218,8 +1296,14 @@ pub fn run(args: &ListenArgs, ctl: Arc<Control>) -> anyhow::Result<ListenStats> 
     }
     // Whatever ended the loop, save what arrived.
     let saved = l.save(&args.out);
+    let recorded = l.finish_recording();
     con.status(&l, true);
     con.finish();
+    match recorded {
+        Ok(Some(f)) => con.line(&format!("wrote {}", f.display())),
+        Ok(None) => {}
+        Err(e) => con.line(&format!("warning: {e:#}")),
+    }
     match saved {
         Ok(files) => {
             for f in files {

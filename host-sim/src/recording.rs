@@ -1,0 +1,204 @@
+//! A robot session as an MCAP file for Foxglove (`host-sim listen --mcap FILE`): the maps and
+//! the robot's pose as they arrive, to replay in Foxglove Studio (or read with any MCAP library).
+//!
+//! Why Foxglove and MCAP rather than rerun: MCAP is the recording format ROS 2 and Foxglove share
+//! (one self-describing file, readable with `mcap` libraries in Rust, Python, C++, Go), Foxglove
+//! Studio opens it directly and draws `foxglove.Grid` maps and `foxglove.PoseInFrame` poses
+//! without any plugin, and the `mcap` crate is small and pure Rust; rerun's viewer and its SDK
+//! are much heavier for a tool that otherwise saves PGM/YAML.
+//!
+//! Topics (JSON messages, each channel with a JSON Schema of the fields used):
+//!
+//! | topic | schema | when |
+//! |---|---|---|
+//! | `/map/marginals` | `foxglove.Grid` | every save (`--save-every`, and at the end) |
+//! | `/map/log_odds` | `foxglove.Grid` | same |
+//! | `/robot/pose` | `foxglove.PoseInFrame` | every scan report |
+//!
+//! A grid has one `INT8` field `occupancy`, the ROS convention: −1 unknown (no evidence), else
+//! p(occupied) in percent; `cell_size` and `pose` (the map's lower-left corner) come from the
+//! robot's settings. Frame `map`. Log and publish times are the host's clock when it arrived.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use base64::Engine;
+use serde_json::json;
+
+/// `foxglove.Grid`'s numeric type code of an `int8` field.
+const INT8: u32 = 2;
+
+/// The JSON Schema of the `foxglove.Grid` fields written here.
+const GRID_SCHEMA: &str = r#"{"type":"object","properties":{
+"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},
+"frame_id":{"type":"string"},
+"pose":{"type":"object","properties":{
+ "position":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},
+ "orientation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}},
+"column_count":{"type":"integer"},
+"cell_size":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"}}},
+"row_stride":{"type":"integer"},
+"cell_stride":{"type":"integer"},
+"fields":{"type":"array","items":{"type":"object","properties":{"name":{"type":"string"},"offset":{"type":"integer"},"type":{"type":"integer"}}}},
+"data":{"type":"string","contentEncoding":"base64"}}}"#;
+
+/// The JSON Schema of the `foxglove.PoseInFrame` fields written here.
+const POSE_SCHEMA: &str = r#"{"type":"object","properties":{
+"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},
+"frame_id":{"type":"string"},
+"pose":{"type":"object","properties":{
+ "position":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},
+ "orientation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}}}}"#;
+
+/// Topic of the sampler's marginals.
+pub const MARGINALS_TOPIC: &str = "/map/marginals";
+/// Topic of the log-odds map.
+pub const LOG_ODDS_TOPIC: &str = "/map/log_odds";
+/// Topic of the robot's pose at each scan.
+pub const POSE_TOPIC: &str = "/robot/pose";
+
+/// One map layer as the recording needs it.
+pub struct GridFrame<'a> {
+    /// Columns, rows.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Cell edge, m.
+    pub cell_m: f64,
+    /// World position of cell (0, 0)'s lower-left corner, m.
+    pub origin_m: (f64, f64),
+    /// Row-major, row 0 at the bottom: p(occupied), or `None` where nothing was observed.
+    pub cells: &'a [Option<f64>],
+}
+
+/// An MCAP file being written.
+pub struct Recording {
+    writer: mcap::Writer<BufWriter<File>>,
+    path: PathBuf,
+    marginals: u16,
+    log_odds: u16,
+    pose: u16,
+    sequence: u32,
+    /// Messages written.
+    pub messages: u64,
+}
+
+impl Recording {
+    /// Creates `path` (replacing it) with the schemas and channels above.
+    pub fn create(path: &Path) -> anyhow::Result<Recording> {
+        let file =
+            File::create(path).with_context(|| format!("{}: cannot create", path.display()))?;
+        let mut writer = mcap::WriteOptions::new()
+            .profile("")
+            .create(BufWriter::new(file))
+            .with_context(|| format!("{}: cannot start an MCAP file", path.display()))?;
+        let grid = writer.add_schema("foxglove.Grid", "jsonschema", GRID_SCHEMA.as_bytes())?;
+        let pose =
+            writer.add_schema("foxglove.PoseInFrame", "jsonschema", POSE_SCHEMA.as_bytes())?;
+        let none = BTreeMap::new();
+        let marginals = writer.add_channel(grid, MARGINALS_TOPIC, "json", &none)?;
+        let log_odds = writer.add_channel(grid, LOG_ODDS_TOPIC, "json", &none)?;
+        let pose = writer.add_channel(pose, POSE_TOPIC, "json", &none)?;
+        Ok(Recording {
+            writer,
+            path: path.to_path_buf(),
+            marginals,
+            log_odds,
+            pose,
+            sequence: 0,
+            messages: 0,
+        })
+    }
+
+    fn write(
+        &mut self,
+        channel_id: u16,
+        t_ns: u64,
+        value: &serde_json::Value,
+    ) -> anyhow::Result<()> {
+        let data = serde_json::to_vec(value)?;
+        self.sequence = self.sequence.wrapping_add(1);
+        self.writer
+            .write_to_known_channel(
+                &mcap::records::MessageHeader {
+                    channel_id,
+                    sequence: self.sequence,
+                    log_time: t_ns,
+                    publish_time: t_ns,
+                },
+                &data,
+            )
+            .with_context(|| format!("{}: cannot write", self.path.display()))?;
+        self.messages += 1;
+        Ok(())
+    }
+
+    /// The map of one layer (`marginals`: the sampler's, else the log-odds) at host time `t_ns`.
+    pub fn grid(&mut self, marginals: bool, g: &GridFrame<'_>, t_ns: u64) -> anyhow::Result<()> {
+        let bytes: Vec<u8> = g
+            .cells
+            .iter()
+            .map(|c| match c {
+                None => -1i8 as u8,
+                Some(p) => (p.clamp(0.0, 1.0) * 100.0).round() as u8,
+            })
+            .collect();
+        let value = json!({
+            "timestamp": stamp(t_ns),
+            "frame_id": "map",
+            "pose": {
+                "position": {"x": g.origin_m.0, "y": g.origin_m.1, "z": 0.0},
+                "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
+            },
+            "column_count": g.width,
+            "cell_size": {"x": g.cell_m, "y": g.cell_m},
+            "row_stride": g.width,
+            "cell_stride": 1,
+            "fields": [{"name": "occupancy", "offset": 0, "type": INT8}],
+            "data": base64::engine::general_purpose::STANDARD.encode(&bytes),
+        });
+        let channel = if marginals {
+            self.marginals
+        } else {
+            self.log_odds
+        };
+        self.write(channel, t_ns, &value)
+    }
+
+    /// The robot's pose (x, y in m, heading in rad) at host time `t_ns`.
+    pub fn pose(&mut self, x_m: f64, y_m: f64, heading: f64, t_ns: u64) -> anyhow::Result<()> {
+        let value = json!({
+            "timestamp": stamp(t_ns),
+            "frame_id": "map",
+            "pose": {
+                "position": {"x": x_m, "y": y_m, "z": 0.0},
+                "orientation": {"x": 0.0, "y": 0.0, "z": (heading / 2.0).sin(), "w": (heading / 2.0).cos()},
+            },
+        });
+        let channel = self.pose;
+        self.write(channel, t_ns, &value)
+    }
+
+    /// Writes the summary and index and closes the file (nothing is lost before this: a file
+    /// cut off without it still holds every message written, readable as a stream).
+    pub fn finish(mut self) -> anyhow::Result<PathBuf> {
+        self.writer
+            .finish()
+            .with_context(|| format!("{}: cannot finish", self.path.display()))?;
+        Ok(self.path)
+    }
+}
+
+fn stamp(t_ns: u64) -> serde_json::Value {
+    json!({"sec": t_ns / 1_000_000_000, "nsec": t_ns % 1_000_000_000})
+}
+
+/// Nanoseconds since the Unix epoch, now.
+pub fn now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
