@@ -59,8 +59,8 @@ impl Board {
         // creates drivers for them.
         let (lidar, link, timer) = unsafe {
             (
-                Uart::new(UART0_BASE, &LIDAR_RX, Irq::Uart0Rx, LIDAR_BAUD),
-                Uart::new(UART1_BASE, &LINK_RX, Irq::Uart1Rx, LINK_BAUD),
+                Uart::new(Irq::Uart0Rx, &LIDAR_RX, LIDAR_BAUD),
+                Uart::new(Irq::Uart1Rx, &LINK_RX, LINK_BAUD),
                 Timer::new(TIMER0_BASE),
             )
         };
@@ -132,10 +132,10 @@ impl<const N: usize> RxLine<N> {
         }
     }
 
-    /// The receive interrupt of the UART at `base`: moves what the UART holds into the ring;
-    /// when the ring is full, leaves the byte in DATA and pauses (the reader resumes it).
-    fn on_interrupt(&self, base: usize) {
-        let (data, state, ctrl, intclear) = uart_regs(base);
+    /// The receive interrupt `irq`: moves what its UART holds into the ring; when the ring is
+    /// full, leaves the byte in DATA and pauses (the reader resumes it).
+    fn on_interrupt(&self, irq: Irq) {
+        let (data, state, ctrl, intclear) = uart_regs(irq);
         intclear.write(INT_RX);
         while state.read() & STATE_RXFULL != 0 {
             if !self.ring.has_room() {
@@ -149,11 +149,11 @@ impl<const N: usize> RxLine<N> {
     }
 }
 
-/// DATA, STATE, CTRL and INTCLEAR of the UART at `base` (`UART0_BASE` or `UART1_BASE`).
-fn uart_regs(base: usize) -> (Reg, Reg, Reg, Reg) {
-    debug_assert!(base == UART0_BASE || base == UART1_BASE);
-    // SAFETY: callers pass one of this board's CMSDK UART blocks; the offsets are its
-    // registers.
+/// DATA, STATE, CTRL and INTCLEAR of the UART whose receive interrupt is `irq` (safe: the
+/// address can only be one of this board's two UART blocks).
+fn uart_regs(irq: Irq) -> (Reg, Reg, Reg, Reg) {
+    let base = irq.base();
+    // SAFETY: `base` is UART0's or UART1's CMSDK register block; the offsets are its registers.
     unsafe {
         (
             Reg::at(base + UART_DATA),
@@ -172,6 +172,16 @@ static LINK_RX: RxLine<LINK_RX_RING> = RxLine::new();
 enum Irq {
     Uart0Rx = 0,
     Uart1Rx = 2,
+}
+
+impl Irq {
+    /// The register block of the UART this interrupt belongs to.
+    const fn base(self) -> usize {
+        match self {
+            Irq::Uart0Rx => UART0_BASE,
+            Irq::Uart1Rx => UART1_BASE,
+        }
+    }
 }
 
 // SAFETY: the numbers are the board's interrupt lines (QEMU hw/arm/mps2.c: `uartirq[] = {0, 2,
@@ -218,12 +228,12 @@ impl embedded_io::Error for UartError {
 
 impl<const N: usize> Uart<N> {
     /// # Safety
-    /// `base` must be a CMSDK APB UART of this board with no other driver, `line` the ring its
-    /// receive interrupt `irq` fills (see `DefaultHandler`).
-    unsafe fn new(base: usize, line: &'static RxLine<N>, irq: Irq, baud: u32) -> Self {
-        let (data, state, ctrl, _) = uart_regs(base);
-        // SAFETY: caller's contract; BAUDDIV is a register of the same block.
-        let bauddiv = unsafe { Reg::at(base + UART_BAUDDIV) };
+    /// No other driver may use `irq`'s UART, and `line` must be the ring its receive interrupt
+    /// fills (see `DefaultHandler`).
+    unsafe fn new(irq: Irq, line: &'static RxLine<N>, baud: u32) -> Self {
+        let (data, state, ctrl, _) = uart_regs(irq);
+        // SAFETY: BAUDDIV is a register of the same CMSDK UART block.
+        let bauddiv = unsafe { Reg::at(irq.base() + UART_BAUDDIV) };
         bauddiv.write((SYSCLK_HZ / baud).max(16));
         ctrl.write(CTRL_TX_EN | CTRL_RX_EN | CTRL_RX_INTEN);
         // QEMU's CMSDK UART asks its character backend for input only when DATA is read (that
@@ -458,8 +468,8 @@ unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
 #[cortex_m_rt::exception]
 unsafe fn DefaultHandler(irqn: i16) {
     match irqn {
-        0 => LIDAR_RX.on_interrupt(UART0_BASE),
-        2 => LINK_RX.on_interrupt(UART1_BASE),
+        0 => LIDAR_RX.on_interrupt(Irq::Uart0Rx),
+        2 => LINK_RX.on_interrupt(Irq::Uart1Rx),
         _ => {
             defmt::error!("unhandled exception/interrupt {=i16}", irqn);
             exit(4)
