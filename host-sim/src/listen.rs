@@ -336,16 +336,7 @@ impl Listener {
         let known: Vec<bool> = (0..width * height)
             .map(|i| map.log_odds.get(i).is_some_and(|&l| l != 0))
             .collect();
-        let (cell_m, origin_m) = match &self.stats.config {
-            Some(c) if c.cell_mm > 0 => (
-                f64::from(c.cell_mm) / 1000.0,
-                (
-                    f64::from(c.origin_x_mm) / 1000.0,
-                    f64::from(c.origin_y_mm) / 1000.0,
-                ),
-            ),
-            _ => (0.05, (0.0, 0.0)),
-        };
+        let (cell_m, origin_m) = self.geometry();
         let t = crate::recording::now_ns();
         for (marginals, layer) in [(true, MapLayer::Marginals), (false, MapLayer::LogOdds)] {
             let Some(probs) = self.probabilities(layer) else {
@@ -637,12 +628,10 @@ impl Listener {
         Some(stream_probabilities(map, &self.have_counts, one, layer))
     }
 
-    /// The map of `layer` as a trinary world (export's thresholds); cell size and origin from
-    /// the robot's `Configured`, else 5 cm at (0, 0).
-    pub fn world(&self, layer: MapLayer) -> Option<World> {
-        let map = self.map.as_ref()?;
-        let probs = self.probabilities(layer)?;
-        let (res, origin) = match &self.stats.config {
+    /// Cell size (m) and the world position of cell (0, 0) (m): from the robot's
+    /// `Configured`, else 5 cm at (0, 0).
+    fn geometry(&self) -> (f64, (f64, f64)) {
+        match &self.stats.config {
             Some(c) if c.cell_mm > 0 => (
                 f64::from(c.cell_mm) / 1000.0,
                 (
@@ -651,7 +640,15 @@ impl Listener {
                 ),
             ),
             _ => (0.05, (0.0, 0.0)),
-        };
+        }
+    }
+
+    /// The map of `layer` as a trinary world (export's thresholds); cell size and origin from
+    /// the robot's `Configured`, else 5 cm at (0, 0).
+    pub fn world(&self, layer: MapLayer) -> Option<World> {
+        let map = self.map.as_ref()?;
+        let probs = self.probabilities(layer)?;
+        let (res, origin) = self.geometry();
         Some(probabilities_to_world(
             &probs,
             map.width,

@@ -87,6 +87,20 @@ pub fn test_and_set(flag: &AtomicBool) -> bool {
     })
 }
 
+/// A hard fault (bad address, undefined instruction, …), on every board: log where and end the
+/// program with status 3 ([`exit`]: QEMU then fails fast instead of spinning until its timeout;
+/// the nRF52840 stops at a breakpoint under a debugger, else resets).
+#[cortex_m_rt::exception]
+unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
+    defmt::error!(
+        "HardFault: pc={=u32:#010x} lr={=u32:#010x} xpsr={=u32:#010x}",
+        frame.pc(),
+        frame.lr(),
+        frame.xpsr()
+    );
+    exit(3)
+}
+
 /// A `static` buffer that is handed out at most once as `&'static mut T`: for the big map arrays,
 /// which must neither live on the stack nor be built on it (`cortex_m::singleton!` constructs its
 /// value on the stack first, which a 128 KiB grid would overflow).

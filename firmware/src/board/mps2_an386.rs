@@ -447,20 +447,7 @@ pub fn uptime_us() -> u32 {
 defmt::timestamp!("{=u32:us}", uptime_us());
 
 // ---------------------------------------------------------------------------------------------
-// Faults
-
-/// A hard fault (bad address, undefined instruction, …): log where and exit with status 3, so a
-/// QEMU run fails instead of spinning until its timeout.
-#[cortex_m_rt::exception]
-unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
-    defmt::error!(
-        "HardFault: pc={=u32:#010x} lr={=u32:#010x} xpsr={=u32:#010x}",
-        frame.pc(),
-        frame.lr(),
-        frame.xpsr()
-    );
-    exit(3)
-}
+// Interrupts (the hard fault handler is shared: board/mod.rs)
 
 /// Every interrupt comes here (this board has no peripheral-access crate, so no vector table
 /// of named handlers): the UARTs' receive interrupts go to their rings; anything else is logged

@@ -216,15 +216,3 @@ pub fn uptime_us() -> u32 {
 }
 
 defmt::timestamp!("{=u32:us}", uptime_us());
-
-/// A hard fault: log where, then [`exit`] (3).
-#[cortex_m_rt::exception]
-unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
-    defmt::error!(
-        "HardFault: pc={=u32:#010x} lr={=u32:#010x} xpsr={=u32:#010x}",
-        frame.pc(),
-        frame.lr(),
-        frame.xpsr()
-    );
-    exit(3)
-}
