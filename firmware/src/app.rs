@@ -15,12 +15,12 @@
 //! runs this same code on the same bytes with those counts ([`Platform::fixed_updates`]) and
 //! must stream the identical map (`host-sim firmware`).
 
+use crate::sizes::APP as SIZES;
 use embedded_io::{Read, ReadReady, Write};
 use ogm_core::ld06::Ld06Parser;
 use ogm_core::link::{LinkRx, Step};
 use ogm_core::session::{Buffers, Session, Sizes, Storage};
 use ogm_core::turn::{Turn, Turns};
-use ogm_core::wire::firmware_sizes as sz;
 use ogm_core::wire::{
     self, Budget, ConfigFault, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello,
     IdleReport, Layer, LidarCounters, LinkCounters, PoseInput, RunConfig, ScanReport, Tile,
@@ -32,10 +32,10 @@ use crate::platform::{Platform, Work};
 use crate::selftest;
 
 /// Beams per scan buffer.
-pub const MAX_BEAMS: usize = sz::MAX_BEAMS;
-const EDGE: usize = sz::TILE_EDGE as usize;
-const WIDTH: usize = sz::WIDTH as usize;
-const HEIGHT: usize = sz::HEIGHT as usize;
+pub const MAX_BEAMS: usize = SIZES.max_beams;
+const EDGE: usize = SIZES.tile_edge as usize;
+const WIDTH: usize = SIZES.width as usize;
+const HEIGHT: usize = SIZES.height as usize;
 const TILES_X: usize = WIDTH.div_ceil(EDGE);
 const TILES_Y: usize = HEIGHT.div_ceil(EDGE);
 const TILES: usize = TILES_X * TILES_Y;
@@ -49,7 +49,7 @@ const CHUNK: u32 = 16;
 const HOST_WAIT_US: u64 = 100_000;
 
 /// Everything the application works in, placed by the board (`static`s there, `Box`es on the
-/// host). The grid is `firmware_sizes::WIDTH × HEIGHT`.
+/// host). The grid is [`crate::sizes::APP`]'s `width × height`.
 pub struct Memory<'a, S: Storage> {
     /// The engine's buffers.
     pub buffers: Buffers<S>,
@@ -356,7 +356,7 @@ impl<S: Storage> State<'_, S> {
             tick_hz: P::TICK_HZ,
             width: self.sizes.width,
             height: self.sizes.height,
-            tile_edge: sz::TILE_EDGE,
+            tile_edge: SIZES.tile_edge,
             max_beams: MAX_BEAMS as u32,
             ray_capacity: self.sizes.rays as u32,
             scan_capacity: self.sizes.scans as u32,

@@ -21,6 +21,7 @@ mod fmt;
 pub mod app;
 pub mod platform;
 pub mod selftest;
+pub mod sizes;
 
 pub use app::{App, Fed, Memory};
 pub use platform::{Platform, StackUsage, Work};

@@ -2,10 +2,11 @@
 //! binary of one board: its hardware and memory around the board-independent application
 //! (the `ogm_firmware` library, `src/lib.rs`, which the host replays to check it).
 //!
-//! * `board/` — everything that knows a hardware address (QEMU mps2-an386 today; an nRF52840
-//!   would be one more module): UARTs, timer, defmt transport, exit, faults;
-//! * `memory` — every large buffer, as `static`s in `.bss` (sizes from
-//!   `ogm_core::wire::firmware_sizes`).
+//! * `board/` — everything that knows a hardware address, behind the `board::Board` trait (QEMU
+//!   mps2-an386, nRF52840-DK; one cargo feature each): UARTs, clock, defmt transport, exit,
+//!   faults;
+//! * `memory` — every large buffer, as `static`s in `.bss` (the board's sizes, from
+//!   `ogm_firmware::sizes`).
 //!
 //! See docs/firmware.md (build, run, RAM layout, figures) and docs/wire.md (the stream).
 #![no_std]
@@ -17,7 +18,7 @@ mod board;
 
 mod memory;
 
-use board::Board;
+use board::{Board, Selected};
 use defmt::info;
 
 /// `cortex_m::asm::delay` argument used to check the tick ↔ instruction relation at boot.
@@ -26,17 +27,17 @@ const CALIBRATION_CYCLES: u32 = 1_000_000;
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    let Some(mut board) = Board::take() else {
+    let Some(mut board) = Selected::take() else {
         defmt::panic!("Board::take called twice");
     };
     info!(
         "boot: ogm-firmware {=str} on {=str}",
         env!("CARGO_PKG_VERSION"),
-        board::BOARD_NAME
+        Selected::NAME
     );
 
     #[cfg(feature = "mps2-an386")]
-    calibrate(&board.timer);
+    calibrate(board.parts().2);
 
     let Some(memory) = memory::take() else {
         defmt::panic!("buffers taken twice");
@@ -50,14 +51,15 @@ fn main() -> ! {
         memory::LOCAL_RAYS,
         ogm_firmware::app::MAX_BEAMS
     );
-    let code = ogm_firmware::app::run(memory, &mut board.link, &mut board.lidar, &mut board.timer);
+    let (link, lidar, clock) = board.parts();
+    let code = ogm_firmware::app::run(memory, link, lidar, clock);
     let stack = board::stack_usage();
     info!(
         "stack: {=u32} of {=u32} bytes used since the settings were applied (high-water mark)",
         stack.used, stack.size
     );
     info!("exit {=i32}", code);
-    board::exit(code)
+    Selected::exit(code)
 }
 
 /// QEMU's instruction clock: the timer against a delay loop of known length.
@@ -96,5 +98,5 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
             None => error!("panic: {=str}", msg),
         }
     }
-    board::exit(101)
+    Selected::exit(101)
 }

@@ -1,6 +1,6 @@
 //! Every large buffer of the firmware: zero-initialised `static`s in `.bss` (no heap, never built
-//! on the stack), handed out once. Sizes come from `ogm_core::wire::firmware_sizes`, the single
-//! place the host's replay also reads them from. The layout and its justification are in
+//! on the stack), handed out once. Sizes are the board's (`Board::SIZES`, written once per board
+//! in `ogm_firmware::sizes`). The layout and its justification are in
 //! docs/firmware.md ("RAM layout").
 
 use crate::board::{StaticArray, StaticBuf, StaticSlot};
@@ -10,25 +10,36 @@ use ogm_core::pose_track::Mount;
 use ogm_core::ray_store::{StoredRay, StoredScan};
 use ogm_core::session::{Buffers, Session, Storage};
 use ogm_core::turn::Turns;
-use ogm_core::wire::firmware_sizes as sz;
 use ogm_core::wire::{MAX_DEVICE_FRAME, MAX_TILE_BYTES};
 use ogm_core::{LogOdds, ScanBuf};
+use ogm_firmware::sizes::BoardSizes;
 use ogm_firmware::Memory;
 
+/// This board's sizes.
+const SZ: BoardSizes = <crate::board::Selected as crate::board::Board>::SIZES;
+
+// The application is built for the same sizes (it reports them in `Hello`).
+const _: () = assert!(
+    SZ.width == ogm_firmware::sizes::APP.width
+        && SZ.height == ogm_firmware::sizes::APP.height
+        && SZ.tile_edge == ogm_firmware::sizes::APP.tile_edge
+        && SZ.max_beams == ogm_firmware::sizes::APP.max_beams
+);
+
 /// Cells of the map.
-pub const CELLS: usize = sz::CELLS;
+pub const CELLS: usize = SZ.cells();
 /// Words of the mapper's per-scan mark bitset.
 pub const MARK_WORDS: usize = marks_len(CELLS);
 /// Words of the sampler's map sample (one bit per cell).
 pub const SAMPLE_WORDS: usize = CELLS.div_ceil(32);
 /// Ray store and tile-visit sizes: the ray data terms' (feature `rays`), else one of each — the
 /// per-cell evidence term stores no rays, and the 24 KiB go to the stack.
-pub const RAYS: usize = if cfg!(feature = "rays") { sz::RAYS } else { 1 };
+pub const RAYS: usize = if cfg!(feature = "rays") { SZ.rays } else { 1 };
 /// See [`RAYS`].
-pub const SCANS: usize = if cfg!(feature = "rays") { sz::SCANS } else { 1 };
+pub const SCANS: usize = if cfg!(feature = "rays") { SZ.scans } else { 1 };
 /// See [`RAYS`].
 pub const LOCAL_RAYS: usize = if cfg!(feature = "rays") {
-    sz::LOCAL_RAYS
+    SZ.local_rays
 } else {
     1
 };
@@ -48,12 +59,12 @@ static SCAN_BUF: StaticArray<StoredScan, { SCANS }> = StaticArray::new();
 /// The sampler's per-tile ray list: 24 B each.
 static LOCAL_BUF: StaticArray<LocalRay, { LOCAL_RAYS }> = StaticArray::new();
 /// Which local rays touch which block of a tile visit (8 × 8 blocks): one bit per (block, ray).
-pub const BLOCK_WORDS: usize = block_words(LOCAL_RAYS, sz::BLOCK_GRID);
+pub const BLOCK_WORDS: usize = block_words(LOCAL_RAYS, ogm_core::gibbs::DEFAULT_BLOCK_GRID);
 static BLOCKS: StaticBuf<[u32; BLOCK_WORDS]> = StaticBuf::new([0; BLOCK_WORDS]);
 /// The scan being received: 12 B per beam.
-static SCAN: StaticBuf<ScanBuf<{ sz::MAX_BEAMS }>> = StaticBuf::new(ScanBuf::new());
+static SCAN: StaticBuf<ScanBuf<{ SZ.max_beams }>> = StaticBuf::new(ScanBuf::new());
 /// The lidar turn being assembled: 12 B per beam.
-static TURN: StaticBuf<ScanBuf<{ sz::MAX_BEAMS }>> = StaticBuf::new(ScanBuf::new());
+static TURN: StaticBuf<ScanBuf<{ SZ.max_beams }>> = StaticBuf::new(ScanBuf::new());
 /// Lidar packets waiting for their pose, and the poses (~4 KiB).
 static TURNS: StaticBuf<Turns> = StaticBuf::new(Turns::new(Mount::ZERO, false));
 /// One encoded outgoing frame.
@@ -84,8 +95,8 @@ impl Storage for Static {
 pub fn take() -> Option<Memory<'static, Static>> {
     Some(Memory {
         buffers: Buffers {
-            width: sz::WIDTH,
-            height: sz::HEIGHT,
+            width: SZ.width,
+            height: SZ.height,
             grid: GRID.take()?,
             marks: MARKS.take()?,
             sample: SAMPLE.take()?,

@@ -2,6 +2,7 @@
 //! (the protocol of the paper's Table II: ≈500×500-cell worlds, F = 75 cells, σ = 3 cells,
 //! sparse scans at stops).
 
+use ogm_firmware::sizes::MPS2_AN386 as FW;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -423,25 +424,24 @@ pub fn run_sim(maps: &[PathBuf], out: &Path, cfg: &EvalConfig) -> anyhow::Result
     Ok(())
 }
 
-/// The firmware's sampler buffers, from `ogm_core::wire::firmware_sizes` (ray store rays and
+/// The firmware's sampler buffers, from `ogm_firmware::sizes::MPS2_AN386` (ray store rays and
 /// scans, the per-tile ray list, `u8` marginal counts): for `eval-sim --firmware-bounds`.
 /// [`with_firmware_bounds`] also sets the firmware's block grid.
 pub fn firmware_bounds() -> Bounds {
-    use ogm_core::wire::firmware_sizes as fw;
     Bounds {
-        rays: Some(fw::RAYS),
-        scans: Some(fw::SCANS),
-        local: Some(fw::LOCAL_RAYS),
+        rays: Some(FW.rays),
+        scans: Some(FW.scans),
+        local: Some(FW.local_rays),
         u8_counts: true,
     }
 }
 
 /// `cfg` as the firmware runs it: [`firmware_bounds`] and the firmware's tile-visit block grid
-/// (`ogm_core::wire::firmware_sizes::BLOCK_GRID`, which sizes its block bitsets).
+/// (`ogm_core::gibbs::DEFAULT_BLOCK_GRID`, which sizes its block bitsets).
 pub fn with_firmware_bounds(cfg: SamplingConfig) -> SamplingConfig {
     SamplingConfig {
         bounds: firmware_bounds(),
-        block_grid: ogm_core::wire::firmware_sizes::BLOCK_GRID,
+        block_grid: ogm_core::gibbs::DEFAULT_BLOCK_GRID,
         ..cfg
     }
 }

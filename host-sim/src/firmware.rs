@@ -20,6 +20,7 @@
 //! (every ray, every scan, no per-tile list limit, `u32` counts), both scored against ground
 //! truth like `eval-sim`.
 
+use ogm_firmware::sizes::MPS2_AN386 as FW;
 use std::collections::{BTreeMap, HashMap};
 use std::io::{Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
@@ -30,9 +31,7 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, bail, ensure, Context};
 use ogm_core::gibbs::Count;
 use ogm_core::session::{Owned, Session, Sizes};
-use ogm_core::wire::{
-    firmware_sizes as fw, Budget, Counters, Done, RunConfig, SamplerReport, ScanReport,
-};
+use ogm_core::wire::{Budget, Counters, Done, RunConfig, SamplerReport, ScanReport};
 use ogm_core::ScanBuf;
 use ogm_firmware::app::MAX_BEAMS;
 use ogm_firmware::{App, Fed, Memory, Platform, Work};
@@ -469,11 +468,11 @@ pub fn sizes_of(hello: &HelloInfo) -> Sizes {
 
 /// The compile-time sizes of the firmware built with its `rays` feature.
 pub const FIRMWARE_SIZES: Sizes = Sizes {
-    width: fw::WIDTH,
-    height: fw::HEIGHT,
-    rays: fw::RAYS,
-    scans: fw::SCANS,
-    local: fw::LOCAL_RAYS,
+    width: FW.width,
+    height: FW.height,
+    rays: FW.rays,
+    scans: FW.scans,
+    local: FW.local_rays,
 };
 
 /// The engine of a replay: the firmware's, over `Vec`s with counters of type `N`.
@@ -754,13 +753,13 @@ impl Checker {
 fn compare(input: &[u8], lidar: &[u8], g: &Groups, c: &mut Checker) -> anyhow::Result<()> {
     let hello = g.hello.as_ref().context("no Hello from the firmware")?;
     ensure!(
-        (hello.width, hello.height, hello.tile_edge) == (fw::WIDTH, fw::HEIGHT, fw::TILE_EDGE)
-            && hello.max_beams as usize == fw::MAX_BEAMS
+        (hello.width, hello.height, hello.tile_edge) == (FW.width, FW.height, FW.tile_edge)
+            && hello.max_beams as usize == FW.max_beams
             && hello.count_max == 255,
-        "the firmware's sizes {hello:?} are not ogm_core::wire::firmware_sizes (rebuild it?)"
+        "the firmware's sizes {hello:?} are not ogm_firmware::sizes::MPS2_AN386 (rebuild it?)"
     );
-    let edge = usize::from(fw::TILE_EDGE);
-    let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
+    let edge = usize::from(FW.tile_edge);
+    let (w, h) = (usize::from(FW.width), usize::from(FW.height));
     let (stream, state) = replay::<u8, _>(
         input,
         lidar,
@@ -1312,8 +1311,8 @@ pub fn corrupt(bytes: &mut [u8], ppm: u32, seed: u64) -> Vec<usize> {
 
 /// The streamed map: every tile the firmware sent, applied in order.
 fn streamed_map(g: &Groups) -> anyhow::Result<StreamedMap> {
-    let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
-    let mut m = StreamedMap::new(w, h, usize::from(fw::TILE_EDGE));
+    let (w, h) = (usize::from(FW.width), usize::from(FW.height));
+    let mut m = StreamedMap::new(w, h, usize::from(FW.tile_edge));
     for t in &g.all_tiles {
         m.apply(t)?;
     }
@@ -1442,7 +1441,7 @@ pub fn sim_config(args: &FirmwareArgs) -> SimConfig {
 
 /// The world of a run: `--map` (5 cm, cropped to the firmware grid) or a generated building.
 pub fn firmware_world(args: &FirmwareArgs) -> anyhow::Result<World> {
-    let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
+    let (w, h) = (usize::from(FW.width), usize::from(FW.height));
     Ok(match &args.map {
         Some(p) => load_world(p, None)
             .with_context(|| format!("loading {}", p.display()))?
@@ -1507,12 +1506,12 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     std::fs::create_dir_all(&qemu_dir)?;
     let world = firmware_world(args)?;
     ensure!(
-        world.width <= usize::from(fw::WIDTH) && world.height <= usize::from(fw::HEIGHT),
+        world.width <= usize::from(FW.width) && world.height <= usize::from(FW.height),
         "world is {}x{} cells, the firmware's grid {}x{}",
         world.width,
         world.height,
-        fw::WIDTH,
-        fw::HEIGHT
+        FW.width,
+        FW.height
     );
     let sim = simulate(&world, &sim_config(args), args.seed)?;
     let mut scans = sim.scans.clone();
@@ -1948,7 +1947,7 @@ fn accuracy(
                 local: total_rays.clamp(1, 1 << 16),
                 ..FIRMWARE_SIZES
             };
-            let (gw, ww, wh) = (usize::from(fw::WIDTH), world.width, world.height);
+            let (gw, ww, wh) = (usize::from(FW.width), world.width, world.height);
             let crop = |v: &[f64]| -> Vec<f64> {
                 (0..wh)
                     .flat_map(|y| (0..ww).map(move |x| y * gw + x))

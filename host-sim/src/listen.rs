@@ -23,6 +23,7 @@
 //! The core ([`Listener`]) takes bytes and is I/O free; [`run`] is the loop around a serial port
 //! (or a captured file), [`cli`] the command.
 
+use ogm_firmware::sizes::MPS2_AN386 as FW;
 use std::collections::VecDeque;
 use std::fmt;
 use std::io::{BufRead, IsTerminal, Read, Write};
@@ -33,9 +34,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context};
-use ogm_core::wire::{
-    firmware_sizes as fw, Budget, Counters, DeviceError, Done, HostMsg, Layer, RunConfig, WireError,
-};
+use ogm_core::wire::{Budget, Counters, DeviceError, Done, HostMsg, Layer, RunConfig, WireError};
 use serde::Serialize;
 
 use crate::link::{host_frame, DeviceEvent, HelloInfo, RunInput, StreamDecoder, StreamedMap};
@@ -571,14 +570,14 @@ impl Listener {
             DeviceEvent::Tile(t) => {
                 if self.map.is_none() {
                     // Started mid-run with no capture: assume the reference firmware's grid.
-                    let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
-                    self.map = Some(StreamedMap::new(w, h, usize::from(fw::TILE_EDGE)));
+                    let (w, h) = (usize::from(FW.width), usize::from(FW.height));
+                    self.map = Some(StreamedMap::new(w, h, usize::from(FW.tile_edge)));
                     self.have_counts = vec![false; w * h];
                     if !self.warned_no_hello {
                         self.warned_no_hello = true;
                         notices.push(Notice::Warning(format!(
                             "tiles before any Hello: assuming the firmware's {w}x{h} grid of {}-cell tiles",
-                            fw::TILE_EDGE
+                            FW.tile_edge
                         )));
                     }
                 }
@@ -751,7 +750,7 @@ pub fn default_config() -> RunConfig {
     let cell_mm = 50;
     let half = |n: u16| -(i32::from(n) * cell_mm / 2);
     RunConfig::robot(
-        (half(fw::WIDTH), half(fw::HEIGHT)),
+        (half(FW.width), half(FW.height)),
         12_000,
         1,
         Budget::Time {

@@ -29,7 +29,7 @@ use crate::world::World;
 
 /// Turn period, µs (LD06: 10 Hz).
 pub const TURN_US: u64 = 100_000;
-/// Packets per turn (12 points each: 456 points, `ogm_core::wire::firmware_sizes::MAX_BEAMS`).
+/// Packets per turn (12 points each: 456 points, `ogm_firmware::sizes::MPS2_AN386.max_beams`).
 pub const PACKETS_PER_TURN: u64 = 38;
 /// Default pose period, µs (25 Hz odometry: not a multiple of the packet period).
 pub const POSE_PERIOD_US: u64 = 40_000;

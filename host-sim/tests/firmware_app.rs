@@ -6,10 +6,10 @@ use host_sim::firmware::HostMemory;
 use host_sim::link::{host_frame, scan_packets, DeviceEvent, StreamDecoder, StreamedMap};
 use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::wire::{
-    self, firmware_sizes as fw, Budget, ConfigFault, ErrorCode, HostMsg, LinkFault, RunConfig,
-    TileSource,
+    self, Budget, ConfigFault, ErrorCode, HostMsg, LinkFault, RunConfig, TileSource,
 };
 use ogm_core::{Angle, Beam, Pose, Range};
+use ogm_firmware::sizes::MPS2_AN386 as FW;
 use ogm_firmware::{Fed, Platform, Work};
 
 /// No clock; a fixed number of sampler updates per scan and idle period.
@@ -192,7 +192,7 @@ fn a_run_streams_exactly_the_engine_map() {
         input.extend(scan_input(k as u32, *p, &mut ts));
     }
     input.extend(host_frame(&HostMsg::Finish));
-    let (w, h) = (usize::from(fw::WIDTH), usize::from(fw::HEIGHT));
+    let (w, h) = (usize::from(FW.width), usize::from(FW.height));
     let (events, fed, engine) = run(Sizes::default(), &input, |s| {
         let s = s.expect("configured");
         (
@@ -215,7 +215,7 @@ fn a_run_streams_exactly_the_engine_map() {
     assert!(reports
         .iter()
         .all(|r| r.beams == 360 && r.sampler_updates == 200 && r.cells_hit > 0));
-    let mut map = StreamedMap::new(w, h, usize::from(fw::TILE_EDGE));
+    let mut map = StreamedMap::new(w, h, usize::from(FW.tile_edge));
     for e in &events {
         if let DeviceEvent::Tile(t) = e {
             map.apply(t).expect("a valid tile");
@@ -372,8 +372,8 @@ fn the_stored_settings_are_the_robot_settings() {
         }
     );
     // Centred on the start.
-    let g = STORED_CONFIG.geometry(fw::WIDTH, fw::HEIGHT).unwrap();
-    assert_eq!(g.cell_of_point(0, 0).x, i32::from(fw::WIDTH) / 2);
+    let g = STORED_CONFIG.geometry(FW.width, FW.height).unwrap();
+    assert_eq!(g.cell_of_point(0, 0).x, i32::from(FW.width) / 2);
 }
 
 #[test]

@@ -120,15 +120,16 @@ impl Sizes {
 }
 
 impl Default for Sizes {
-    /// The reference firmware's ([`crate::wire::firmware_sizes`], its `rays` build).
+    /// A 256 × 256 grid (12.8 m at 5 cm) and ray capacities that hold a short run's rays
+    /// (3 072 rays of 128 scans, 128 per tile visit): what a host session gets unless it
+    /// says otherwise. A robot's own sizes are its board's, reported in its `Hello`.
     fn default() -> Self {
-        use crate::wire::firmware_sizes as sz;
         Sizes {
-            width: sz::WIDTH,
-            height: sz::HEIGHT,
-            rays: sz::RAYS,
-            scans: sz::SCANS,
-            local: sz::LOCAL_RAYS,
+            width: 256,
+            height: 256,
+            rays: 3072,
+            scans: 128,
+            local: 128,
         }
     }
 }
@@ -378,7 +379,7 @@ impl<N: Count> Owned<N> {
             sample: vec![0; cells.div_ceil(32)],
             counts: vec![N::default(); cells],
             local: vec![LocalRay::default(); local],
-            blocks: vec![0; gibbs::block_words(local, crate::wire::firmware_sizes::BLOCK_GRID)],
+            blocks: vec![0; gibbs::block_words(local, gibbs::DEFAULT_BLOCK_GRID)],
         }
     }
 }

@@ -51,30 +51,6 @@ pub const MAX_TILE_BYTES: usize = 512;
 /// [`encode`] needs as working room.
 pub const MAX_DEVICE_FRAME: usize = MAX_TILE_BYTES + 32;
 
-/// The compile-time sizes of the reference firmware (`firmware/` allocates exactly these; the
-/// host's replay and accuracy runs use them too, and [`Hello`] reports them at run time).
-/// Justification: `docs/firmware.md` ("RAM layout").
-pub mod firmware_sizes {
-    /// Grid columns (256 × 5 cm = 12.8 m).
-    pub const WIDTH: u16 = 256;
-    /// Grid rows.
-    pub const HEIGHT: u16 = 256;
-    /// Cells.
-    pub const CELLS: usize = WIDTH as usize * HEIGHT as usize;
-    /// Edge of a streamed tile, cells (16 × 16 = 256 cells, 512 bytes of log-odds).
-    pub const TILE_EDGE: u16 = 16;
-    /// Beams per scan buffer (LD06: 4500 points/s at 10 Hz = 450 per turn = 38 packets).
-    pub const MAX_BEAMS: usize = 456;
-    /// Ray store: rays (6 bytes each).
-    pub const RAYS: usize = 3072;
-    /// Ray store: scans (20 bytes each).
-    pub const SCANS: usize = 128;
-    /// The sampler's per-tile ray list (`LocalRay`, 28 bytes each, plus its block bitsets).
-    pub const LOCAL_RAYS: usize = 128;
-    /// Blocks per side of the sampler's tile-visit ray index (`gibbs::SamplerConfig::block_grid`).
-    pub const BLOCK_GRID: u8 = 8;
-}
-
 /// A pose on the wire.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -354,7 +330,7 @@ impl RunConfig {
             tile_shift: self.sampler_tile_shift,
             visit_sweeps: self.visit_sweeps,
             seed: self.seed,
-            block_grid: firmware_sizes::BLOCK_GRID,
+            block_grid: crate::gibbs::DEFAULT_BLOCK_GRID,
             data: self.data,
             evidence_gain_q8: self.evidence_gain_q8,
             evidence_free_q8: self.evidence_free_q8,

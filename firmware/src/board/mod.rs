@@ -1,20 +1,24 @@
 //! Boards: everything that knows a hardware address lives under this module.
 //!
-//! The application (`main.rs`) sees only what every board provides:
+//! The application (`main.rs`) sees a board only through the [`Board`] trait, implemented by
+//! the board [`Selected`] by the cargo feature:
 //!
-//! * [`Board::take`] → `Option<Board>` (once), with the fields
-//!   * `lidar`: a UART for the range sensor (LD06: 230400 baud, sensor → MCU),
-//!   * `link`: a UART for the map stream / pose input (host link),
-//!   * `timer`: a free-running tick counter ([`Timer::now`], [`TICK_HZ`] ticks per second),
-//!   * `core`: the Cortex-M core peripherals (NVIC, SysTick, …);
-//! * the UARTs implement `embedded_io::{Read, Write, ReadReady, WriteReady}` (receive through
-//!   an interrupt-filled [`RxRing`], transmit blocking) plus a non-blocking `try_read_byte`;
-//! * [`exit`]`(code) -> !`: end the program (QEMU: semihosting exit; a real board would reset);
-//! * the defmt global logger and the defmt timestamp (QEMU: semihosting stdout).
+//! * [`Board::take`] → `Option<Self>` (once): the hardware initialised;
+//! * [`Board::parts`]: the application's three parts —
+//!   * the host link (`Board::Link`: map stream out, settings and poses in),
+//!   * the range sensor's UART (`Board::Lidar`: LD06, 230400 baud, sensor → MCU),
+//!   * the clock (`Board::Clock`, an `ogm_firmware::Platform`: free-running ticks, stack use);
 //!
-//! Adding a board (e.g. nRF52840) = one more cargo feature + one more module here that provides
-//! the same names. Board-independent Cortex-M helpers ([`StaticBuf`], [`stack_usage`]) live in
-//! this file.
+//!   the UARTs are blocking `embedded_io::{Read, ReadReady, Write}` over receive rings that an
+//!   interrupt (mps2-an386) or EasyDMA (nRF52840) fills while the sampler runs;
+//! * [`Board::SIZES`]: its buffer sizes (`ogm_firmware::sizes`, one entry per board), which
+//!   `memory.rs` allocates and the application reports in `Hello`;
+//! * [`Board::exit`]: end the program (QEMU: semihosting exit; the DK: breakpoint or reset);
+//! * besides the trait, each board module installs the defmt global logger and timestamp.
+//!
+//! Adding a board = one more cargo feature, one more module here implementing [`Board`], its
+//! entry in `ogm_firmware::sizes` and its `memory.x`. Board-independent Cortex-M helpers
+//! ([`StaticBuf`], [`stack_usage`]) live in this file.
 //!
 //! # `unsafe`
 //! The crate denies `unsafe_code` everywhere except under `board`. Every `unsafe` block here says
@@ -31,13 +35,37 @@ use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 mod mps2_an386;
 #[cfg(feature = "mps2-an386")]
 #[allow(unused_imports)]
-pub use mps2_an386::{exit, uptime_us, Board, Timer, Uart, UartError, BOARD_NAME, TICK_HZ};
+pub use mps2_an386::{uptime_us, Mps2An386 as Selected, Timer, Uart, UartError, TICK_HZ};
 
 #[cfg(feature = "nrf52840")]
 mod nrf52840;
 #[cfg(feature = "nrf52840")]
 #[allow(unused_imports)]
-pub use nrf52840::{exit, uptime_us, Board, Timer, Uart, UartError, BOARD_NAME, TICK_HZ};
+pub use nrf52840::{uptime_us, Nrf52840Dk as Selected, Timer, Uart, UartError, TICK_HZ};
+
+/// What a board gives the application: the seam between `main.rs` and the hardware (module
+/// docs). Every method is called once, by `main`.
+pub trait Board: Sized {
+    /// Board name, logged at boot.
+    const NAME: &'static str;
+    /// Its buffer sizes (`ogm_firmware::sizes`).
+    const SIZES: ogm_firmware::sizes::BoardSizes;
+    /// The host link: map stream out, settings and poses in.
+    type Link: embedded_io::Read + embedded_io::ReadReady + embedded_io::Write;
+    /// The range sensor's UART, receive side.
+    type Lidar: embedded_io::Read + embedded_io::ReadReady;
+    /// The free-running clock, and what else the application asks of the board.
+    type Clock: ogm_firmware::Platform;
+
+    /// Initialises the hardware; `None` if called before (peripherals have one owner).
+    fn take() -> Option<Self>;
+
+    /// The host link, the lidar's UART and the clock.
+    fn parts(&mut self) -> (&mut Self::Link, &mut Self::Lidar, &mut Self::Clock);
+
+    /// Ends the program with status `code` (0 = ok).
+    fn exit(code: i32) -> !;
+}
 
 #[cfg(not(any(feature = "mps2-an386", feature = "nrf52840")))]
 compile_error!("select a board feature (`mps2-an386`, the default, or `nrf52840`)");
@@ -98,7 +126,7 @@ unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
         frame.lr(),
         frame.xpsr()
     );
-    exit(3)
+    <Selected as Board>::exit(3)
 }
 
 /// A `static` buffer that is handed out at most once as `&'static mut T`: for the big map arrays,

@@ -14,7 +14,8 @@
 
 use super::{Reg, RxRing};
 use core::sync::atomic::{AtomicBool, Ordering};
-use defmt_semihosting as _; // the global defmt logger
+use defmt_semihosting as _;
+use ogm_firmware::sizes::BoardSizes; // the global defmt logger
 
 /// Name logged at boot.
 pub const BOARD_NAME: &str = "mps2-an386 (QEMU)";
@@ -33,8 +34,8 @@ const TIMER0_BASE: usize = 0x4000_0000;
 const LIDAR_BAUD: u32 = 230_400;
 const LINK_BAUD: u32 = 921_600;
 
-/// The board's peripherals, handed out once.
-pub struct Board {
+/// The board's peripherals, handed out once ([`super::Board::take`]).
+pub struct Mps2An386 {
     /// UART0: the range sensor.
     pub lidar: Uart<LIDAR_RX_RING>,
     /// UART1: the host link (map stream out, poses in).
@@ -45,10 +46,16 @@ pub struct Board {
     pub core: cortex_m::Peripherals,
 }
 
-impl Board {
+impl super::Board for Mps2An386 {
+    const NAME: &'static str = BOARD_NAME;
+    const SIZES: BoardSizes = ogm_firmware::sizes::MPS2_AN386;
+    type Link = Uart<LINK_RX_RING>;
+    type Lidar = Uart<LIDAR_RX_RING>;
+    type Clock = Timer;
+
     /// Initialises the board: both UARTs enabled (TX and RX), timer 0 running. `None` if called
     /// before (peripherals have a single owner).
-    pub fn take() -> Option<Board> {
+    fn take() -> Option<Self> {
         static TAKEN: AtomicBool = AtomicBool::new(false);
         if super::test_and_set(&TAKEN) {
             return None;
@@ -73,12 +80,20 @@ impl Board {
             // Bytes that arrived before the unmask are taken now.
             cortex_m::peripheral::NVIC::pend(irq);
         }
-        Some(Board {
+        Some(Mps2An386 {
             lidar,
             link,
             timer,
             core,
         })
+    }
+
+    fn parts(&mut self) -> (&mut Self::Link, &mut Self::Lidar, &mut Self::Clock) {
+        (&mut self.link, &mut self.lidar, &mut self.timer)
+    }
+
+    fn exit(code: i32) -> ! {
+        exit(code)
     }
 }
 

@@ -22,6 +22,7 @@ use core::sync::atomic::AtomicBool;
 use defmt_rtt as _; // the global defmt logger
 use embassy_nrf::buffered_uarte::{self, BufferedUarte, BufferedUarteRx};
 use embassy_nrf::{bind_interrupts, peripherals, uarte};
+use ogm_firmware::sizes::BoardSizes;
 use panic_probe as _;
 
 /// Name logged at boot and sent in `Hello`.
@@ -47,8 +48,8 @@ static LIDAR_RX: StaticBuf<[u8; 4096]> = StaticBuf::new([0; 4096]);
 static LINK_RX: StaticBuf<[u8; 1024]> = StaticBuf::new([0; 1024]);
 static LINK_TX: StaticBuf<[u8; 1024]> = StaticBuf::new([0; 1024]);
 
-/// The board's peripherals, handed out once.
-pub struct Board {
+/// The board's peripherals, handed out once ([`super::Board::take`]).
+pub struct Nrf52840Dk {
     /// UARTE1, receive only: the range sensor.
     pub lidar: LidarUart,
     /// UARTE0 (the DK's USB virtual COM port): the host link.
@@ -57,10 +58,16 @@ pub struct Board {
     pub timer: Timer,
 }
 
-impl Board {
+impl super::Board for Nrf52840Dk {
+    const NAME: &'static str = BOARD_NAME;
+    const SIZES: BoardSizes = ogm_firmware::sizes::NRF52840;
+    type Link = Uart;
+    type Lidar = LidarUart;
+    type Clock = Timer;
+
     /// Initialises the board: clocks (64 MHz crystal), both UARTs, the cycle counter. `None`
     /// if called before.
-    pub fn take() -> Option<Board> {
+    fn take() -> Option<Self> {
         static TAKEN: AtomicBool = AtomicBool::new(false);
         if super::test_and_set(&TAKEN) {
             return None;
@@ -101,11 +108,19 @@ impl Board {
             c,
             lidar_rx,
         );
-        Some(Board {
+        Some(Nrf52840Dk {
             lidar: LidarUart(lidar),
             link: Uart(link),
             timer: Timer,
         })
+    }
+
+    fn parts(&mut self) -> (&mut Self::Link, &mut Self::Lidar, &mut Self::Clock) {
+        (&mut self.link, &mut self.lidar, &mut self.timer)
+    }
+
+    fn exit(code: i32) -> ! {
+        exit(code)
     }
 }
 

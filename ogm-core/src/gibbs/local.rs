@@ -15,6 +15,10 @@ use crate::geometry::CellCoord;
 /// Largest number of blocks per side.
 pub const MAX_BLOCK_GRID: u8 = 16;
 
+/// The block grid a robot's sampler uses (8 × 8 blocks of a 16 × 16-cell tile: 2 × 2 cells
+/// each), which sizes its block bitsets ([`block_words`]).
+pub const DEFAULT_BLOCK_GRID: u8 = 8;
+
 /// A ray gathered for the current tile visit (24 bytes): everything the per-patch work needs,
 /// precomputed once per visit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
