@@ -11,6 +11,7 @@ pub mod eval;
 pub mod eval_log;
 pub mod explore;
 pub mod firmware;
+pub mod l25;
 pub mod lidar;
 pub mod link;
 pub mod listen;

@@ -3,7 +3,9 @@
 //! firmware's default mode (`RunConfig::robot`: per-cell evidence, the evidence's configuration
 //! as a candidate, averaged draws); `gibbs_l9_border_rays` is the paper's (the forward model
 //! over every stored ray, sample counts), `gibbs_l9_border_hybrid` the robot's sampler with
-//! the rays still in the store plus the evidence of what it dropped.
+//! the rays still in the store plus the evidence of what it dropped. `gibbs_l25` (Table I's
+//! "L = 25, data-driven prior") does not fit `ogm_core::gibbs`'s 16-bit patch words and runs on
+//! the host-only sampler of [`crate::l25`] instead.
 
 use std::time::Instant;
 
@@ -35,17 +37,22 @@ pub enum Variant {
     L9BorderRays,
     /// The robot's sampler with the hybrid data term (stored rays + evidence of dropped ones).
     L9BorderHybrid,
+    /// L = 25 (5 × 5 patches) with the unconditioned data-driven prior (rays; Table I's "L = 25,
+    /// data-driven prior"): the host-only [`crate::l25::L25Sampler`].
+    L25,
 }
 
 impl Variant {
-    /// The paper's Table II columns, then the robot's sampler and its other data terms.
-    pub const ALL: [Variant; 6] = [
+    /// The paper's Table II columns, then the robot's sampler and its other data terms, then
+    /// Table I's L = 25.
+    pub const ALL: [Variant; 7] = [
         Variant::L1,
         Variant::L1Border,
         Variant::L9,
         Variant::L9Border,
         Variant::L9BorderRays,
         Variant::L9BorderHybrid,
+        Variant::L25,
     ];
 
     /// The method name in reports.
@@ -57,6 +64,7 @@ impl Variant {
             Variant::L9Border => "gibbs_l9_border",
             Variant::L9BorderRays => "gibbs_l9_border_rays",
             Variant::L9BorderHybrid => "gibbs_l9_border_hybrid",
+            Variant::L25 => "gibbs_l25",
         }
     }
 
@@ -64,14 +72,15 @@ impl Variant {
     pub fn cells(self) -> u32 {
         match self {
             Variant::L1 | Variant::L1Border => 1,
-            _ => 9,
+            Variant::L25 => crate::l25::CELLS,
+            Variant::L9 | Variant::L9Border | Variant::L9BorderRays | Variant::L9BorderHybrid => 9,
         }
     }
 
     /// `cfg` with this variant's data term and estimator: the robot's (`RunConfig::robot`,
     /// free evidence and the evidence map's free update matched to `cfg.sigma_cells`) for
     /// [`Variant::L9Border`] and [`Variant::L9BorderHybrid`], the paper's (rays, sample counts)
-    /// for the others.
+    /// for the others (for [`Variant::L25`] only the rays are implemented).
     pub fn configure(self, cfg: &SamplingConfig) -> SamplingConfig {
         match self {
             Variant::L9Border | Variant::L9BorderHybrid => {
@@ -269,6 +278,21 @@ impl<P: PatchPrior, N: ogm_core::gibbs::Count> Sweeper for Session<P, N> {
     }
 }
 
+impl Sweeper for crate::l25::L25Sampler {
+    fn sweeps(&mut self, n: u32) {
+        crate::l25::L25Sampler::sweeps(self, n);
+    }
+    fn marginals(&self) -> Vec<f64> {
+        crate::l25::L25Sampler::marginals(self)
+    }
+    fn stats(&self) -> SamplerStats {
+        crate::l25::L25Sampler::stats(self)
+    }
+    fn store_stats(&self) -> StoreStats {
+        crate::l25::L25Sampler::store_stats(self)
+    }
+}
+
 impl Prepared {
     /// Stores the dataset's rays and initialises `variant` from the thresholded `map`.
     pub fn new(
@@ -305,6 +329,15 @@ impl Prepared {
                 cfg,
                 seed,
             )?,
+            Variant::L25 => {
+                anyhow::ensure!(
+                    cfg.data == DataTerm::Rays && cfg.estimator == Estimator::Counts,
+                    "gibbs_l25 implements only the rays and sample counts"
+                );
+                Box::new(crate::l25::L25Sampler::new(
+                    geometry, mapper, scans, map, cfg, seed,
+                )?)
+            }
         };
         Ok(Prepared { inner })
     }

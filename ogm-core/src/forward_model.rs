@@ -188,6 +188,31 @@ impl ForwardModel {
     pub fn no_return_clear(&self) -> LogLik {
         self.no_return_clear
     }
+
+    /// Eq. 1's factor of one ray: log p(z | f) for a ray of `steps` steps of `step_q12` cells
+    /// (Q12, ≤ √2) whose measured range is `z_q4` (1/16 steps; [`crate::ray_store::NONE`]: no
+    /// return) and whose first occupied step in the map it is scored against is `f` (`NONE`:
+    /// none). Steps and ranges are below 2^15 (a ray never leaves the grid's ≤ 2^15 columns),
+    /// so every product fits an i32.
+    #[inline]
+    pub fn ray(&self, z_q4: u16, step_q12: u16, steps: u16, f: u16) -> LogLik {
+        use crate::ray_store::NONE;
+        let k = i32::from(step_q12);
+        if z_q4 == NONE {
+            if f == NONE {
+                return self.no_return_clear();
+            }
+            // (F − f) steps → 1/16 cells: × step (Q12) × 16 / 4096.
+            return self.no_return(((i32::from(steps) - i32::from(f)) * k + 128) >> 8);
+        }
+        if f == NONE {
+            return self.hit_clear();
+        }
+        // (z − f) in 1/16 steps → 1/16 cells: × step (Q12) / 4096, rounded to nearest (an
+        // arithmetic shift: |d| < 2^20 and k < 2^13, so the product fits an i32).
+        let d = i32::from(z_q4) - 16 * i32::from(f);
+        self.hit((d * k + 2048) >> 12)
+    }
 }
 
 #[cfg(test)]

@@ -5,8 +5,8 @@
 //!   every fully known 5×5 window ([`train::WindowCounts`]);
 //! * [`L25`] — the symmetrised L = 25 histogram (all 8 rotations/flips of every window), from
 //!   which every other distribution is derived ([`Distributions`]); the committed copy
-//!   ([`L25::committed`], generated into `l25_table.rs`) is the host-side reference sampler's
-//!   unconditioned 5×5 prior;
+//!   ([`L25::committed`], generated into `l25_table.rs`) is the unconditioned 5×5 prior of the
+//!   host-side L = 25 sampler ([`crate::l25`], eval-sim's `gibbs_l25`);
 //! * [`codegen`] — prunes and emits `ogm-core/src/prior_table.rs` and `l25_table.rs`,
 //!   byte-for-byte reproducibly;
 //! * [`stats`] — `prior-stats`: the figures of §III-A/B next to the paper's.

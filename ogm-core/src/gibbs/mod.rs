@@ -1663,23 +1663,7 @@ where
     /// log p(z | f) for a local ray; `n` is the far end's step (max range).
     #[inline]
     fn log_lik(&self, lr: &LocalRay, f: u16, n: u16) -> LogLik {
-        let k = i32::from(lr.step_q12);
-        if lr.z_q4 == NONE {
-            if f == NONE {
-                return self.forward.no_return_clear();
-            }
-            // (F − f) steps → 1/16 cells: × step (Q12) × 16 / 4096. Steps < 2^15: no overflow.
-            return self
-                .forward
-                .no_return(((i32::from(n) - i32::from(f)) * k + 128) >> 8);
-        }
-        if f == NONE {
-            return self.forward.hit_clear();
-        }
-        // (z − f) in 1/16 steps → 1/16 cells: × step (Q12) / 4096, rounded to nearest (an
-        // arithmetic shift: |d| < 2^20 and k < 2^13, so the product fits an i32).
-        let d = i32::from(lr.z_q4) - 16 * i32::from(f);
-        self.forward.hit((d * k + 2048) >> 12)
+        self.forward.ray(lr.z_q4, lr.step_q12, n, f)
     }
 
     /// Draws a candidate with probability `q / total` (see [`weights_q16`]).
