@@ -640,7 +640,7 @@ impl L25Sampler {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::sampling::{run_sampler, Variant};
     use ogm_core::patch::Dihedral;
@@ -654,7 +654,9 @@ mod tests {
 
     /// Noise-free scans from three poses left of a vertical wall at column [`WALL_X`] (beams
     /// within ±60° of +x that reach it hit its face, the others see nothing).
-    fn wall_dataset() -> (GridGeometry, MapperConfig, Vec<ScanRecord>, Vec<LogOdds>) {
+    /// A 4 m × 3 m room at 10 cm with one wall, seen from four poses (shared with the
+    /// `sampling` tests).
+    pub(crate) fn wall_dataset() -> (GridGeometry, MapperConfig, Vec<ScanRecord>, Vec<LogOdds>) {
         let g = GridGeometry::new(W, H, CELL, 0, 0).unwrap();
         let mapper = MapperConfig::new(25 * CELL);
         let face = f64::from(WALL_X as u32 * CELL);

@@ -48,11 +48,11 @@ enum Commands {
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Methods besides traditional OGM: gibbs_l1, gibbs_l1_border, gibbs_l9, gibbs_l9_border,
-        /// gibbs_l9_border_rays, gibbs_l9_border_hybrid, gibbs_l25 and the baselines mh,
+        /// gibbs_l9_border_rays, gibbs_l9_border_hybrid, gibbs_l9_border_mean, gibbs_l25 and the baselines mh,
         /// mh_heatmap, bp_sum, bp_max, dd (comma-separated), or "none".
         #[arg(
             long,
-            default_value = "gibbs_l1,gibbs_l1_border,gibbs_l9,gibbs_l9_border,gibbs_l9_border_rays,gibbs_l9_border_hybrid,gibbs_l25"
+            default_value = "gibbs_l1,gibbs_l1_border,gibbs_l9,gibbs_l9_border,gibbs_l9_border_rays,gibbs_l9_border_hybrid,gibbs_l9_border_mean,gibbs_l25"
         )]
         methods: String,
         /// Sampler sweeps (map samples) counted after burn-in.

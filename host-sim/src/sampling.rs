@@ -3,7 +3,8 @@
 //! firmware's default mode (`RunConfig::robot`: per-cell evidence, the evidence's configuration
 //! as a candidate, averaged draws); `gibbs_l9_border_rays` is the paper's (the forward model
 //! over every stored ray, sample counts), `gibbs_l9_border_hybrid` the robot's sampler with
-//! the rays still in the store plus the evidence of what it dropped. `gibbs_l25` (Table I's
+//! the rays still in the store plus the evidence of what it dropped; `gibbs_l9_border_mean` the
+//! robot's sampler read out as the mean of every counted sweep instead of its moving average. `gibbs_l25` (Table I's
 //! "L = 25, data-driven prior") does not fit `ogm_core::gibbs`'s 16-bit patch words and runs on
 //! the host-only sampler of [`crate::l25`] instead.
 
@@ -37,6 +38,11 @@ pub enum Variant {
     L9BorderRays,
     /// The robot's sampler with the hybrid data term (stored rays + evidence of dropped ones).
     L9BorderHybrid,
+    /// The robot's sampler ([`Variant::L9Border`]: evidence, the same chain), its marginals
+    /// read out as the mean of every counted sweep (sample counts, like the paper's samplers)
+    /// instead of the robot's short moving average, which an online robot needs (its evidence
+    /// changes, and its estimates are bytes) but which keeps only the last ~8 draws of a cell.
+    L9BorderMean,
     /// L = 25 (5 × 5 patches) with the unconditioned data-driven prior (rays; Table I's "L = 25,
     /// data-driven prior"): the host-only [`crate::l25::L25Sampler`].
     L25,
@@ -45,13 +51,14 @@ pub enum Variant {
 impl Variant {
     /// The paper's Table II columns, then the robot's sampler and its other data terms, then
     /// Table I's L = 25.
-    pub const ALL: [Variant; 7] = [
+    pub const ALL: [Variant; 8] = [
         Variant::L1,
         Variant::L1Border,
         Variant::L9,
         Variant::L9Border,
         Variant::L9BorderRays,
         Variant::L9BorderHybrid,
+        Variant::L9BorderMean,
         Variant::L25,
     ];
 
@@ -64,6 +71,7 @@ impl Variant {
             Variant::L9Border => "gibbs_l9_border",
             Variant::L9BorderRays => "gibbs_l9_border_rays",
             Variant::L9BorderHybrid => "gibbs_l9_border_hybrid",
+            Variant::L9BorderMean => "gibbs_l9_border_mean",
             Variant::L25 => "gibbs_l25",
         }
     }
@@ -73,17 +81,22 @@ impl Variant {
         match self {
             Variant::L1 | Variant::L1Border => 1,
             Variant::L25 => crate::l25::CELLS,
-            Variant::L9 | Variant::L9Border | Variant::L9BorderRays | Variant::L9BorderHybrid => 9,
+            Variant::L9
+            | Variant::L9Border
+            | Variant::L9BorderRays
+            | Variant::L9BorderHybrid
+            | Variant::L9BorderMean => 9,
         }
     }
 
     /// `cfg` with this variant's data term and estimator: the robot's (`RunConfig::robot`,
     /// free evidence and the evidence map's free update matched to `cfg.sigma_cells`) for
-    /// [`Variant::L9Border`] and [`Variant::L9BorderHybrid`], the paper's (rays, sample counts)
-    /// for the others (for [`Variant::L25`] only the rays are implemented).
+    /// [`Variant::L9Border`] and [`Variant::L9BorderHybrid`] ([`Variant::L9BorderMean`]: the
+    /// robot's with sample counts), the paper's (rays, sample counts) for the others (for
+    /// [`Variant::L25`] only the rays are implemented).
     pub fn configure(self, cfg: &SamplingConfig) -> SamplingConfig {
         match self {
-            Variant::L9Border | Variant::L9BorderHybrid => {
+            Variant::L9Border | Variant::L9BorderHybrid | Variant::L9BorderMean => {
                 let robot = ogm_core::wire::RunConfig::robot(
                     (0, 0),
                     1,
@@ -93,16 +106,20 @@ impl Variant {
                 // The robot's split: √r in the mapper's update, √r in the evidence term.
                 let free = ogm_core::gibbs::noise_matched_free_q8(cfg.sigma_cells);
                 SamplingConfig {
-                    data: if self == Variant::L9Border {
-                        DataTerm::Evidence
-                    } else {
+                    data: if self == Variant::L9BorderHybrid {
                         DataTerm::Hybrid
+                    } else {
+                        DataTerm::Evidence
                     },
                     evidence_gain_q8: robot.evidence_gain_q8,
                     evidence_free_q8: free,
                     free_update_q8: free,
                     data_candidate: robot.data_candidate,
-                    estimator: robot.estimator,
+                    estimator: if self == Variant::L9BorderMean {
+                        Estimator::Counts
+                    } else {
+                        robot.estimator
+                    },
                     hot_share: robot.hot_share,
                     ..*cfg
                 }
@@ -320,7 +337,10 @@ impl Prepared {
             }
             Variant::L1Border => session(geometry, mapper, scans, map, NeighbourPrior, cfg, seed)?,
             Variant::L9 => session(geometry, mapper, scans, map, UnconditionedPrior, cfg, seed)?,
-            Variant::L9Border | Variant::L9BorderRays | Variant::L9BorderHybrid => session(
+            Variant::L9Border
+            | Variant::L9BorderRays
+            | Variant::L9BorderHybrid
+            | Variant::L9BorderMean => session(
                 geometry,
                 mapper,
                 scans,
@@ -471,4 +491,35 @@ fn build<P: PatchPrior, N: ogm_core::gibbs::Count>(
         gibbs,
         sweep,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_mean_read_out_runs_the_robots_chain() {
+        let (g, mapper, scans, map) = crate::l25::tests::wall_dataset();
+        let cfg = SamplingConfig {
+            burn_in: 5,
+            sweeps: 40,
+            ..SamplingConfig::default()
+        };
+        let run =
+            |v: Variant| run_sampler(g, &mapper, &scans, &map, v, &v.configure(&cfg), 7).unwrap();
+        let (robot, mean) = (run(Variant::L9Border), run(Variant::L9BorderMean));
+        // The same draws, patch for patch (what each update did is counted the same)…
+        assert_eq!(robot.stats, mean.stats);
+        assert!(robot.stats.changed > 0, "{:?}", robot.stats);
+        // …read out differently (the robot's moving average vs the mean of the sweeps), into
+        // maps that agree on most cells' side of 0.5.
+        assert_ne!(robot.marginals, mean.marginals);
+        let agree = robot
+            .marginals
+            .iter()
+            .zip(&mean.marginals)
+            .filter(|(a, b)| (**a > 0.5) == (**b > 0.5))
+            .count();
+        assert!(agree * 10 >= robot.marginals.len() * 9, "{agree}");
+    }
 }
