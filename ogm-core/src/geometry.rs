@@ -119,7 +119,8 @@ impl GridGeometry {
     /// The cell containing a world point (mm), possibly outside the grid. Saturates at the
     /// `i32` range for absurd inputs.
     pub fn cell_of_point(&self, x_mm: i64, y_mm: i64) -> CellCoord {
-        let s = i64::from(self.cell_mm);
+        // ≥ 1 by construction; `max` lets the compiler drop the division's zero check.
+        let s = i64::from(self.cell_mm.max(1));
         let fx = x_mm
             .saturating_sub(i64::from(self.origin_x_mm))
             .div_euclid(s);

@@ -781,9 +781,11 @@ fn ceil_div_affine(m: i64, q: i64, c: i64, d: i64) -> i64 {
         .clamp(-LIMIT, LIMIT),
         None => {
             let p = i128::from(m) * i128::from(q) + i128::from(c);
-            let d = i128::from(d);
-            let v = -((-p).div_euclid(d));
-            v.clamp(-i128::from(LIMIT), i128::from(LIMIT)) as i64
+            // d > 0 at every call; a zero divisor gives 0 (as in `ceil_div_i64`), not a panic.
+            let Some(f) = (-p).checked_div_euclid(i128::from(d)) else {
+                return 0;
+            };
+            (-f).clamp(-i128::from(LIMIT), i128::from(LIMIT)) as i64
         }
     }
 }

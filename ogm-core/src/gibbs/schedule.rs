@@ -103,10 +103,13 @@ impl HotTiles {
             if cand != 0 {
                 let b = cand.trailing_zeros();
                 *word &= !(1 << b);
-                self.marked -= 1;
+                self.marked = self.marked.saturating_sub(1);
                 let g = w * 32 + b;
                 self.cursor = (g + 1) % self.groups.max(1);
-                let (gx, gy) = (g % self.groups_x, g / self.groups_x);
+                // A set bit means groups_x ≥ 1 (`mark` sets none otherwise); `max` keeps the
+                // division free of a panic path.
+                let gx_n = self.groups_x.max(1);
+                let (gx, gy) = (g % gx_n, g / gx_n);
                 return Some((
                     gx << self.group_shift,
                     gy << self.group_shift,
