@@ -14,8 +14,8 @@
 
 use super::{Reg, RxRing};
 use core::sync::atomic::{AtomicBool, Ordering};
-use defmt_semihosting as _;
-use ogm_firmware::sizes::BoardSizes; // the global defmt logger
+use defmt_semihosting as _; // the global defmt logger
+use ogm_firmware::sizes::BoardSizes;
 
 /// Name logged at boot.
 pub const BOARD_NAME: &str = "mps2-an386 (QEMU)";
