@@ -4,10 +4,10 @@
 //!
 //! `ogm_core::gibbs` keeps patch configurations in 16-bit words, so 5 × 5 (25-bit) patches do
 //! not fit it; this module is the same algorithm in `std` code, built from ogm-core's public
-//! pieces: the [`RayStore`] (Bresenham rays from the pose's cell to the far end at maximum
-//! range, measured ranges as step indices, min-range and capacity handling), its
-//! [`RayStore::ray_geometry`] ([`ogm_core::ray::Ray`] and the step length) and the fixed-point
-//! [`ForwardModel`]. What it does, per patch update (Algorithm 1):
+//! pieces: the [`ogm_core::ray_store::RayStore`] and the fixed-point [`ForwardModel`], built by
+//! `sampling::rays_and_model` as for the other samplers (Bresenham rays from the pose's
+//! cell to the far end at maximum range, measured ranges as step indices, min-range and capacity
+//! handling), and the store's `ray_geometry` ([`ogm_core::ray::Ray`] and the step length). What it does, per patch update (Algorithm 1):
 //!
 //! * **Patch**: a uniformly random 5 × 5 patch inside the map (centres two cells from the edge).
 //! * **p_randPatch**: with probability [`SamplingConfig::p_rand_patch`] a uniformly random
@@ -34,11 +34,11 @@
 use std::collections::HashMap;
 use std::sync::{Arc, OnceLock};
 
-use anyhow::{anyhow, ensure};
+use anyhow::ensure;
 use ogm_core::fixed::LSB_NATS;
 use ogm_core::forward_model::ForwardModel;
 use ogm_core::gibbs::SamplerStats;
-use ogm_core::ray_store::{RayStore, StoreStats, StoredRay, StoredScan, NONE};
+use ogm_core::ray_store::{StoreStats, NONE};
 use ogm_core::{GridGeometry, LogOdds, MapperConfig};
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -255,25 +255,7 @@ impl L25Sampler {
             map.len(),
             geometry.len()
         );
-        let total_rays: usize = scans.iter().map(|s| s.beams.len()).sum();
-        let b = cfg.bounds;
-        let mut store = RayStore::new(
-            geometry,
-            mapper.max_range_mm,
-            mapper.min_range_mm,
-            vec![StoredScan::default(); b.scans.unwrap_or(scans.len()).max(1)],
-            vec![StoredRay::default(); b.rays.unwrap_or(total_rays).max(1)],
-        )
-        .map_err(|e| anyhow!("ray store: {e}"))?;
-        for s in scans {
-            store.add_scan(&s.pose, &s.beams);
-        }
-        let forward = ForwardModel::gaussian(
-            cfg.sigma_cells,
-            cfg.outlier_weight,
-            f64::from(mapper.max_range_mm) / f64::from(geometry.cell_mm()),
-        )
-        .map_err(|e| anyhow!("forward model: {e}"))?;
+        let (store, forward) = crate::sampling::rays_and_model(geometry, mapper, scans, cfg)?;
 
         // Every ray's in-map cells, and per cell the rays visiting it.
         let mut rays = Vec::with_capacity(store.rays().len());

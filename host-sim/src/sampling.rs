@@ -267,7 +267,7 @@ trait Sweeper {
     fn store_stats(&self) -> StoreStats;
 }
 
-type Store = RayStore<Vec<StoredScan>, Vec<StoredRay>>;
+pub(crate) type Store = RayStore<Vec<StoredScan>, Vec<StoredRay>>;
 
 struct Session<P, N: ogm_core::gibbs::Count> {
     store: Store,
@@ -426,15 +426,15 @@ fn session<P: PatchPrior + 'static>(
     })
 }
 
-fn build<P: PatchPrior, N: ogm_core::gibbs::Count>(
+/// A dataset's rays in a store of `cfg.bounds`' capacities (all of them when unbounded), and the
+/// forward model of `cfg`'s σ and outlier weight over the mapper's range: what every sampler
+/// variant that reads rays starts from.
+pub(crate) fn rays_and_model(
     geometry: GridGeometry,
     mapper: &MapperConfig,
     scans: &[ScanRecord],
-    map: &[LogOdds],
-    prior: P,
     cfg: &SamplingConfig,
-    seed: u64,
-) -> anyhow::Result<Session<P, N>> {
+) -> anyhow::Result<(Store, ForwardModel)> {
     let total_rays: usize = scans.iter().map(|s| s.beams.len()).sum();
     let b = cfg.bounds;
     let mut store = RayStore::new(
@@ -448,13 +448,26 @@ fn build<P: PatchPrior, N: ogm_core::gibbs::Count>(
     for s in scans {
         store.add_scan(&s.pose, &s.beams);
     }
-    let cells_per_patch = u32::from(prior.size()) * u32::from(prior.size());
     let fm = ForwardModel::gaussian(
         cfg.sigma_cells,
         cfg.outlier_weight,
         f64::from(mapper.max_range_mm) / f64::from(geometry.cell_mm()),
     )
     .map_err(|e| anyhow!("forward model: {e}"))?;
+    Ok((store, fm))
+}
+
+fn build<P: PatchPrior, N: ogm_core::gibbs::Count>(
+    geometry: GridGeometry,
+    mapper: &MapperConfig,
+    scans: &[ScanRecord],
+    map: &[LogOdds],
+    prior: P,
+    cfg: &SamplingConfig,
+    seed: u64,
+) -> anyhow::Result<Session<P, N>> {
+    let (mut store, fm) = rays_and_model(geometry, mapper, scans, cfg)?;
+    let cells_per_patch = u32::from(prior.size()) * u32::from(prior.size());
     let sc = SamplerConfig {
         p_rand_patch: cfg.p_rand_patch,
         burn_in_sweeps: cfg.burn_in,
@@ -472,7 +485,8 @@ fn build<P: PatchPrior, N: ogm_core::gibbs::Count>(
         estimator: cfg.estimator,
         hot_share: cfg.hot_share,
     };
-    let local = b.local.unwrap_or(total_rays.clamp(1, 1 << 16));
+    let total_rays: usize = scans.iter().map(|s| s.beams.len()).sum();
+    let local = cfg.bounds.local.unwrap_or(total_rays.clamp(1, 1 << 16));
     let buf = Buffers {
         sample: vec![0u32; geometry.len().div_ceil(32)],
         counts: vec![N::default(); geometry.len()],
