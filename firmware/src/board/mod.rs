@@ -31,6 +31,32 @@
 use core::cell::UnsafeCell;
 use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
+/// The application's view of a board (`ogm_firmware::Platform`), the same on every board: its
+/// `BOARD_NAME`, its clock `$timer` (whose inherent `now` counts `TICK_HZ` per second) and the
+/// painted stack. Invoked in each board module, whose names it takes.
+macro_rules! platform {
+    ($timer:ty) => {
+        impl ogm_firmware::Platform for $timer {
+            const NAME: &'static str = BOARD_NAME;
+            const TICK_HZ: u32 = TICK_HZ;
+
+            #[inline(always)]
+            fn now(&self) -> u32 {
+                <$timer>::now(self)
+            }
+
+            fn stack_usage(&self) -> ogm_firmware::StackUsage {
+                super::stack_usage()
+            }
+
+            fn repaint_stack(&mut self) {
+                super::repaint_stack();
+            }
+        }
+    };
+}
+use platform;
+
 #[cfg(feature = "mps2-an386")]
 mod mps2_an386;
 #[cfg(feature = "mps2-an386")]

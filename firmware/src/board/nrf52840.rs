@@ -206,24 +206,7 @@ impl Timer {
     }
 }
 
-/// The application's view of this board: its name, the clock, the painted stack.
-impl ogm_firmware::Platform for Timer {
-    const NAME: &'static str = BOARD_NAME;
-    const TICK_HZ: u32 = TICK_HZ;
-
-    #[inline(always)]
-    fn now(&self) -> u32 {
-        Timer::now(self)
-    }
-
-    fn stack_usage(&self) -> ogm_firmware::StackUsage {
-        super::stack_usage()
-    }
-
-    fn repaint_stack(&mut self) {
-        super::repaint_stack();
-    }
-}
+super::platform!(Timer);
 
 /// Microseconds since boot (wraps after 67 s), for defmt timestamps.
 pub fn uptime_us() -> u32 {
