@@ -5,15 +5,10 @@
 use std::process::Command;
 
 use host_sim::world::{load_world, Truth};
-use ogm_core::wire::{self, Budget, DeviceMsg, Hello, Layer, RunConfig, Tile};
+use ogm_core::wire::{DeviceMsg, Layer, Tile};
 
-const W: usize = 32;
-const EDGE: usize = 16;
-
-fn frame(msg: &DeviceMsg<'_>, out: &mut Vec<u8>) {
-    let mut buf = [0u8; wire::MAX_DEVICE_FRAME];
-    out.extend_from_slice(wire::encode(msg, &mut buf).unwrap());
-}
+mod stream_fixture;
+use stream_fixture::{frame, half_free_tile, hello_and_config, EDGE, W};
 
 /// Cell index of local cell `i` of tile (tx, ty).
 fn cell(tx: usize, ty: usize, i: usize) -> usize {
@@ -22,37 +17,10 @@ fn cell(tx: usize, ty: usize, i: usize) -> usize {
 
 #[test]
 fn a_cut_off_stream_exports_with_the_robots_geometry() {
-    let mut s = Vec::new();
-    frame(
-        &DeviceMsg::Hello(Hello {
-            firmware: "test",
-            board: "none",
-            tick_hz: 25_000_000,
-            width: W as u16,
-            height: W as u16,
-            tile_edge: EDGE as u16,
-            max_beams: 456,
-            ray_capacity: 0,
-            scan_capacity: 0,
-            local_capacity: 0,
-            count_max: 255,
-        }),
-        &mut s,
-    );
-    let config = RunConfig::robot((-1000, 500), 8000, 1, Budget::Fixed { updates: 1 });
-    let config = RunConfig {
-        cell_mm: 100,
-        ..config
-    };
-    frame(&DeviceMsg::Configured(config), &mut s);
+    let mut s = hello_and_config();
     // Tile (0, 0): strong free evidence in its left half, occupied in its right half; the
     // sampler's marginals say the opposite of the log-odds in its top row.
-    let lo: Vec<u8> = (0..EDGE * EDGE)
-        .flat_map(|i| {
-            let l: i16 = if i % EDGE < EDGE / 2 { -3072 } else { 3072 };
-            l.to_le_bytes()
-        })
-        .collect();
+    let lo = half_free_tile();
     let counts: Vec<u8> = (0..EDGE * EDGE)
         .map(|i| {
             let occupied = (i % EDGE >= EDGE / 2) != (i / EDGE == EDGE - 1);

@@ -5,49 +5,16 @@
 use std::process::Command;
 
 use base64::Engine;
-use ogm_core::wire::{
-    self, Budget, DeviceMsg, Hello, Layer, RunConfig, ScanReport, Tile, WirePose,
-};
+use ogm_core::wire::{DeviceMsg, Layer, ScanReport, Tile, WirePose};
 
-const W: usize = 32;
-const EDGE: usize = 16;
-
-fn frame(msg: &DeviceMsg<'_>, out: &mut Vec<u8>) {
-    let mut buf = [0u8; wire::MAX_DEVICE_FRAME];
-    out.extend_from_slice(wire::encode(msg, &mut buf).unwrap());
-}
+mod stream_fixture;
+use stream_fixture::{frame, half_free_tile, hello_and_config, EDGE, W};
 
 #[test]
 fn a_listened_session_reads_back_from_its_mcap_file() {
-    let mut s = Vec::new();
-    frame(
-        &DeviceMsg::Hello(Hello {
-            firmware: "test",
-            board: "none",
-            tick_hz: 25_000_000,
-            width: W as u16,
-            height: W as u16,
-            tile_edge: EDGE as u16,
-            max_beams: 456,
-            ray_capacity: 0,
-            scan_capacity: 0,
-            local_capacity: 0,
-            count_max: 255,
-        }),
-        &mut s,
-    );
-    let config = RunConfig {
-        cell_mm: 100,
-        ..RunConfig::robot((-1000, 500), 8000, 1, Budget::Fixed { updates: 1 })
-    };
-    frame(&DeviceMsg::Configured(config), &mut s);
+    let mut s = hello_and_config();
     // Tile (1, 0): free on its left half, occupied on its right half; the rest never observed.
-    let lo: Vec<u8> = (0..EDGE * EDGE)
-        .flat_map(|i| {
-            let l: i16 = if i % EDGE < EDGE / 2 { -3072 } else { 3072 };
-            l.to_le_bytes()
-        })
-        .collect();
+    let lo = half_free_tile();
     let poses = [(250, -120, 0u16), (400, 80, 16_384)];
     for (seq, &(x_mm, y_mm, heading)) in poses.iter().enumerate() {
         frame(
