@@ -196,6 +196,7 @@ fuzz_target!(|items: Vec<Item>| {
                     } else {
                         Estimator::Average {
                             shift,
+                            max_shift: shift,
                             reset_on_change,
                             rao_blackwell,
                         }

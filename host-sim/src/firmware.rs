@@ -162,9 +162,10 @@ pub struct SamplerArgs {
     /// Offer the evidence's own configuration as a candidate (true/false).
     #[arg(long)]
     pub data_candidate: Option<bool>,
-    /// Marginal estimator: `counts`, or `avg:SHIFT[:reset]` / `rb:SHIFT[:reset]` (average of
-    /// draws / of conditional probabilities over about 2^SHIFT updates of a cell; `reset`
-    /// restarts changed cells at their log-odds probability).
+    /// Marginal estimator: `counts`, or `avg:SHIFT[-MAX][:reset]` / `rb:SHIFT[-MAX][:reset]`
+    /// (average of draws / of conditional probabilities over about 2^SHIFT updates of a cell,
+    /// lengthening to 2^MAX where a tile's evidence stays unchanged; `reset` restarts changed
+    /// cells at their log-odds probability). The robot's: `avg:3-7:reset`.
     #[arg(long, value_parser = parse_estimator)]
     pub estimator: Option<ogm_core::gibbs::Estimator>,
     /// Tile visits (of 256) that go to changed tiles.
@@ -203,20 +204,25 @@ pub fn parse_data_term(s: &str) -> Result<ogm_core::gibbs::DataTerm, String> {
     }
 }
 
-/// `counts`, or `avg:SHIFT` / `rb:SHIFT` followed by `:reset` (restart changed cells): the
-/// average of draws, or of conditional probabilities (Rao-Blackwellised).
+/// `counts`, or `avg:SHIFT[-MAX]` / `rb:SHIFT[-MAX]` followed by `:reset` (restart changed
+/// cells): the average of draws, or of conditional probabilities (Rao-Blackwellised), whose
+/// shift lengthens from SHIFT to MAX (default: SHIFT) where the evidence settles.
 pub fn parse_estimator(s: &str) -> Result<ogm_core::gibbs::Estimator, String> {
     use ogm_core::gibbs::Estimator;
     let parts: Vec<&str> = s.split(':').collect();
-    let bad = || format!("`{s}`: expected counts, avg:SHIFT[:reset] or rb:SHIFT[:reset]");
+    let bad =
+        || format!("`{s}`: expected counts, avg:SHIFT[-MAX][:reset] or rb:SHIFT[-MAX][:reset]");
     match parts.as_slice() {
         ["counts"] => Ok(Estimator::Counts),
-        [kind @ ("avg" | "rb"), shift, rest @ ..] => {
-            let shift: u8 = shift
-                .parse()
-                .ok()
-                .filter(|s| (1..=15).contains(s))
-                .ok_or_else(|| format!("`{s}`: SHIFT must be 1 to 15"))?;
+        [kind @ ("avg" | "rb"), shifts, rest @ ..] => {
+            let (shift, max) = shifts.split_once('-').unwrap_or((shifts, shifts));
+            let parse = |x: &str| x.parse::<u8>().ok().filter(|v| (1..=15).contains(v));
+            let (Some(shift), Some(max_shift)) = (parse(shift), parse(max)) else {
+                return Err(format!("`{s}`: SHIFT and MAX must be 1 to 15"));
+            };
+            if max_shift < shift {
+                return Err(format!("`{s}`: MAX must be at least SHIFT"));
+            }
             let reset_on_change = match rest {
                 [] => false,
                 ["reset"] => true,
@@ -224,6 +230,7 @@ pub fn parse_estimator(s: &str) -> Result<ogm_core::gibbs::Estimator, String> {
             };
             Ok(Estimator::Average {
                 shift,
+                max_shift,
                 reset_on_change,
                 rao_blackwell: *kind == "rb",
             })
@@ -2171,4 +2178,45 @@ pub fn cli(args: &FirmwareArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_estimator;
+    use ogm_core::gibbs::Estimator;
+
+    #[test]
+    fn estimator_options_parse_and_bad_ones_say_why() {
+        assert_eq!(parse_estimator("counts"), Ok(Estimator::Counts));
+        assert_eq!(
+            parse_estimator("avg:3-7:reset"),
+            Ok(Estimator::Average {
+                shift: 3,
+                max_shift: 7,
+                reset_on_change: true,
+                rao_blackwell: false,
+            })
+        );
+        assert_eq!(
+            parse_estimator("rb:2"),
+            Ok(Estimator::Average {
+                shift: 2,
+                max_shift: 2,
+                reset_on_change: false,
+                rao_blackwell: true,
+            })
+        );
+        for bad in [
+            "avg",
+            "avg:0",
+            "avg:16",
+            "avg:5-3",
+            "avg:3-x",
+            "avg:3:later",
+            "mean",
+        ] {
+            assert!(parse_estimator(bad).is_err(), "{bad}");
+        }
+        assert!(parse_estimator("avg:5-3").unwrap_err().contains("at least"));
+    }
 }

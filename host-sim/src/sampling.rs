@@ -111,7 +111,8 @@ impl Variant {
                     } else {
                         DataTerm::Evidence
                     },
-                    evidence_gain_q8: robot.evidence_gain_q8,
+                    // The robot's law, at this data set's σ (512 at the robot's σ = 3 cells).
+                    evidence_gain_q8: ogm_core::gibbs::noise_matched_gain_q8(cfg.sigma_cells),
                     evidence_free_q8: free,
                     free_update_q8: free,
                     data_candidate: robot.data_candidate,

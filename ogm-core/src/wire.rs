@@ -35,7 +35,7 @@ use crate::sensor_model::InverseSensorModel;
 use crate::{Angle, LogOdds};
 
 /// Schema version, the first byte of every frame.
-pub const VERSION: u8 = 4;
+pub const VERSION: u8 = 5;
 
 /// CRC-32/ISO-HDLC (the zlib/Ethernet CRC-32), table driven (1 KiB of flash).
 pub static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
@@ -243,11 +243,15 @@ impl RunConfig {
     pub fn robot(origin_mm: (i32, i32), max_range_mm: u32, seed: u64, budget: Budget) -> Self {
         let sigma = f64::from(Self::paper(origin_mm, max_range_mm, seed, budget).sigma_milli_cells);
         let free = crate::gibbs::noise_matched_free_q8(sigma / 1000.0);
-        Self::robot_with_free(origin_mm, max_range_mm, seed, budget, free)
+        RunConfig {
+            evidence_gain_q8: crate::gibbs::noise_matched_gain_q8(sigma / 1000.0),
+            ..Self::robot_with_free(origin_mm, max_range_mm, seed, budget, free)
+        }
     }
 
     /// [`RunConfig::robot`] with the noise-matched free scale given (`free_q8`, what
-    /// [`crate::gibbs::noise_matched_free_q8`] gives for the paper's σ = 3 cells: 141), so a
+    /// [`crate::gibbs::noise_matched_free_q8`] gives for the paper's σ = 3 cells: 141) and the
+    /// evidence gain of σ = 3 cells (512, [`crate::gibbs::noise_matched_gain_q8`]), so a
     /// firmware's stored settings are a constant and carry no floating-point code.
     pub const fn robot_with_free(
         origin_mm: (i32, i32),
@@ -266,6 +270,7 @@ impl RunConfig {
             data_candidate: true,
             estimator: Estimator::Average {
                 shift: 3,
+                max_shift: 7,
                 reset_on_change: true,
                 rao_blackwell: false,
             },
@@ -1179,6 +1184,7 @@ mod tests {
             data_candidate: true,
             estimator: Estimator::Average {
                 shift: u8::MAX,
+                max_shift: u8::MAX,
                 reset_on_change: true,
                 rao_blackwell: true,
             },
@@ -1362,6 +1368,7 @@ mod tests {
         let robot = RunConfig::robot((0, 0), 3750, 7, Budget::Fixed { updates: 100 });
         assert_eq!(robot.free_update_q8, 141);
         assert_eq!(robot.evidence_free_q8, 141);
+        assert_eq!(robot.evidence_gain_q8, 512);
         let m = robot.mapper_config().unwrap();
         assert_eq!(m.model.free_increment(), LogOdds(-564));
         assert_eq!(m.model.occ_increment(), LogOdds(1024));

@@ -53,6 +53,7 @@ fn evidence_config(seed: u64) -> SamplerConfig {
         data_candidate: true,
         estimator: Estimator::Average {
             shift: 3,
+            max_shift: 3,
             reset_on_change: true,
             rao_blackwell: false,
         },
@@ -228,27 +229,76 @@ fn raster_sweep_on(w: u16, h: u16) {
     );
 }
 
+/// The `u8` estimate's rule for one cell, in floating point: move `⌊(d + u mod 2^s) / 2^s⌋`
+/// towards the target, `d` the distance, `s = min(shift, 7)`.
+fn byte_rule(m: u8, occupied: bool, shift: u8, u: u8) -> u8 {
+    let s = i32::from(shift.min(7));
+    let d = if occupied {
+        255.0 - f64::from(m)
+    } else {
+        f64::from(m)
+    };
+    let frac = f64::from(u32::from(u) % (1 << s));
+    let step = ((d + frac) / f64::from(1 << s)).floor();
+    (f64::from(m) + if occupied { step } else { -step }) as u8
+}
+
 #[test]
 fn bytewise_averaging_matches_the_scalar_rule() {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(1);
     for _ in 0..20_000 {
         let cells: Vec<u8> = (0..6).map(|_| rng.next_u32() as u8).collect();
-        let (bits, shift): (u32, u8) = (range(&mut rng, 0, 8), range(&mut rng, 1, 6));
+        let (bits, shift): (u32, u8) = (range(&mut rng, 0, 8), range(&mut rng, 0, 9));
+        let dither = rng.next_u32();
         let mut fast = cells.clone();
-        u8::average_row(&mut fast, 1, 3, bits, shift);
-        // x ← t, then `shift` times x ← ⌊(x + m) / 2⌋: x = m + (t − m)/2^shift, truncated per
-        // halving.
+        u8::average_row(&mut fast, 1, 3, bits, shift, dither);
         let mut want = cells.clone();
         for k in 0..3 {
-            let m = u32::from(cells[1 + k]);
-            let mut x = if bits >> k & 1 != 0 { 255 } else { 0 };
-            for _ in 0..shift {
-                x = (x + m) / 2;
-            }
-            want[1 + k] = x as u8;
+            let u = (dither >> (8 * k)) as u8;
+            want[1 + k] = byte_rule(cells[1 + k], bits >> k & 1 != 0, shift, u);
+            assert_eq!(
+                ogm_core::gibbs::average_byte(cells[1 + k], bits >> k & 1 != 0, shift, u),
+                want[1 + k]
+            );
         }
         assert_eq!(fast, want, "{cells:?} bits {bits:03b} shift {shift}");
     }
+}
+
+#[test]
+fn stochastic_rounding_is_unbiased_and_reaches_both_ends() {
+    // Over every dither byte the mean move is exactly d / 2^s: no drift from rounding, so a
+    // long average of a cell occupied in a fraction p of the draws settles at 255 p.
+    for shift in 1..=7u8 {
+        for m in [0u8, 1, 3, 100, 200, 254, 255] {
+            for occupied in [false, true] {
+                let sum: i32 = (0..=255u8)
+                    .map(|u| {
+                        i32::from(ogm_core::gibbs::average_byte(m, occupied, shift, u))
+                            - i32::from(m)
+                    })
+                    .sum();
+                let d = if occupied {
+                    255 - i32::from(m)
+                } else {
+                    -i32::from(m)
+                };
+                assert_eq!(
+                    sum * (1 << shift),
+                    d * 256,
+                    "m {m} shift {shift} {occupied}"
+                );
+            }
+        }
+    }
+    // Always-occupied and always-free draws end at exactly 255 and 0.
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
+    let (mut hi, mut lo) = ([0u8; 4], [255u8; 4]);
+    for _ in 0..4000 {
+        u8::average_row(&mut hi, 0, 3, 0b111, 7, rng.next_u32());
+        u8::average_row(&mut lo, 0, 3, 0, 7, rng.next_u32());
+    }
+    assert_eq!((hi, lo), ([255, 255, 255, 0], [0, 0, 0, 255]));
 }
 
 #[test]
@@ -309,25 +359,19 @@ fn patch_averaging_matches_the_scalar_rule_row_by_row() {
     let width = 5;
     for _ in 0..5_000 {
         let cells: Vec<u8> = (0..width * 3).map(|_| rng.next_u32() as u8).collect();
-        let (config, shift): (u32, u8) = (range(&mut rng, 0, 512), range(&mut rng, 1, 6));
+        let (config, shift): (u32, u8) = (range(&mut rng, 0, 512), range(&mut rng, 1, 9));
+        let dither = rng.next_u32();
         // Patches whose last row ends at the map's last cell too (no byte after it).
         let start: usize = range(&mut rng, 0, 3);
         let mut fast = cells.clone();
-        u8::average_patch3(&mut fast, start, width, config, shift);
+        u8::average_patch3(&mut fast, start, width, config, shift, dither);
         let mut want = cells.clone();
         for r in 0..3 {
+            let row_dither = dither.rotate_right(8 * r as u32);
             for k in 0..3 {
                 let i = start + r * width + k;
-                let m = u32::from(cells[i]);
-                let mut x = if config >> (3 * r + k) & 1 != 0 {
-                    255
-                } else {
-                    0
-                };
-                for _ in 0..shift {
-                    x = (x + m) / 2;
-                }
-                want[i] = x as u8;
+                let u = (row_dither >> (8 * k)) as u8;
+                want[i] = byte_rule(cells[i], config >> (3 * r + k) & 1 != 0, shift, u);
             }
         }
         assert_eq!(fast, want, "{cells:?} config {config:09b} shift {shift}");

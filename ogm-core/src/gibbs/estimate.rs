@@ -19,11 +19,18 @@
 pub enum Estimator {
     /// Sample counts after burn-in.
     Counts,
-    /// Exponentially-forgetting average per cell, weight `2^-shift` per update.
+    /// Exponentially-forgetting average per cell, weight `2^-shift` per update, the shift
+    /// lengthening to `max_shift` where the evidence stays unchanged.
     Average {
         /// Log2 of the averaging length, in updates of a cell (a cell is in 9 patches, so about
-        /// 9 updates per sweep): 1 ..= 15.
+        /// 9 updates per sweep), on a tile visit right after its evidence changed: 1 ..= 15.
         shift: u8,
+        /// Longest averaging, `shift ..= 15`: each tile visit uses `shift` plus the log2 of
+        /// one more than the tile's visits since a scan last changed a cell in it, up to this
+        /// — about a running mean since the last change, where the chain has had time to mix,
+        /// and a short memory where a scan just changed the posterior. `u8` estimates average
+        /// at most `2^-7` per update (stochastically rounded: [`super::Count::average_row`]).
+        max_shift: u8,
         /// Restart a cell's estimate at its log-odds probability when a scan first observes it
         /// or flips the sign of its log-odds.
         reset_on_change: bool,
@@ -33,6 +40,27 @@ pub enum Estimator {
 }
 
 impl Estimator {
+    /// The averaging shift of a tile visit `age` visits after a scan last changed the tile:
+    /// `shift + ⌊log2(age + 1)⌋`, at most `max_shift`; 0 for [`Estimator::Counts`].
+    #[inline]
+    pub fn shift_at(self, age: u8) -> u8 {
+        match self {
+            Estimator::Counts => 0,
+            Estimator::Average {
+                shift, max_shift, ..
+            } => {
+                let grow = (u32::from(age) + 1).ilog2() as u8;
+                shift.saturating_add(grow).min(max_shift.max(shift))
+            }
+        }
+    }
+
+    /// Whether the averaging lengthens where the evidence settles (`max_shift > shift`).
+    #[inline]
+    pub fn lengthens(self) -> bool {
+        matches!(self, Estimator::Average { shift, max_shift, .. } if max_shift > shift)
+    }
+
     /// Whether the estimator restarts cells whose evidence changed.
     #[inline]
     pub fn resets(self) -> bool {

@@ -57,7 +57,9 @@ use crate::ray_store::{RayStore, StoredRay, StoredScan, NONE, STALE};
 use crate::Angle;
 pub use estimate::Estimator;
 use evidence::patch_evidence;
-pub use evidence::{free_evidence_q8, noise_matched_free_q8, DataTerm, MAX_GAIN_Q8};
+pub use evidence::{
+    free_evidence_q8, noise_matched_free_q8, noise_matched_gain_q8, DataTerm, MAX_GAIN_Q8,
+};
 pub use local::{block_words, LocalRay, DEFAULT_BLOCK_GRID, MAX_BLOCK_GRID};
 use local::{for_each_ray, set_bit, BlockGrid};
 pub use priors::{BorderPrior, ConstantCellPrior, NeighbourPrior, UnconditionedPrior};
@@ -95,8 +97,12 @@ pub trait Count: Copy + Default {
     }
     /// [`Count::ema_bit`] of the `n` cells `counts[start..start + n]` towards bit `k` of `bits`
     /// for cell `k` (cells out of range are skipped): what every patch update does per row.
+    /// `dither` is a uniformly random word: `u8` estimates round stochastically with its byte
+    /// `k` for cell `k` (see the `u8` implementation); wider counts round to nearest and
+    /// ignore it.
     #[inline]
-    fn average_row(counts: &mut [Self], start: usize, n: usize, bits: u32, shift: u8) {
+    fn average_row(counts: &mut [Self], start: usize, n: usize, bits: u32, shift: u8, dither: u32) {
+        let _ = dither;
         if let Some(row) = counts.get_mut(start..start + n) {
             for (k, c) in row.iter_mut().enumerate() {
                 *c = c.ema_bit(bits >> k & 1 != 0, shift);
@@ -104,11 +110,26 @@ pub trait Count: Copy + Default {
         }
     }
     /// [`Count::average_row`] of the three rows of a 3 × 3 patch, row r starting at
-    /// `start + r · width` with bits `3r ..= 3r + 2` of `config`.
+    /// `start + r · width` with bits `3r ..= 3r + 2` of `config` and dither
+    /// `dither.rotate_right(8 r)`.
     #[inline]
-    fn average_patch3(counts: &mut [Self], start: usize, width: usize, config: u32, shift: u8) {
+    fn average_patch3(
+        counts: &mut [Self],
+        start: usize,
+        width: usize,
+        config: u32,
+        shift: u8,
+        dither: u32,
+    ) {
         for r in 0..3 {
-            Self::average_row(counts, start + r * width, 3, config >> (3 * r), shift);
+            Self::average_row(
+                counts,
+                start + r * width,
+                3,
+                config >> (3 * r),
+                shift,
+                dither.rotate_right(8 * r as u32),
+            );
         }
     }
     /// The value of probability `p_q16 / 2^16` (clamped to 1), rounded to nearest.
@@ -170,38 +191,56 @@ impl Count for u8 {
     fn set(v: u32) -> Self {
         v.min(255) as u8
     }
-    /// Three cells at once in one 32-bit word (SIMD within a register; the firmware's hot path):
-    /// `x ← t`, then `shift` times the bytewise halving add `x ← (x + m) / 2`, which leaves
-    /// `x = m + (t − m) / 2^shift` (each stage truncating, so a cell settles at 254 rather than
-    /// 255 when occupied, and reaches 0 when free). A fourth byte rides along unchanged (its
-    /// target is itself).
+    /// Three cells at once in one 32-bit word (SIMD within a register; the firmware's hot path),
+    /// with stochastic rounding so that long averages stay unbiased in 8 bits: cell `k` moves
+    /// `⌊(d + u_k mod 2^s) / 2^s⌋` towards its target, `d` its distance to the target (`m` or
+    /// `255 − m`), `s = min(shift, 7)` and `u_k` byte `k` of `dither`. The expected move is
+    /// exactly `d / 2^s`, where truncation (what an 8-bit average of fixed rounding does) would
+    /// lose up to one LSB a step and stop a rarely occupied cell from ever registering at
+    /// `s` ≥ 5. A fourth byte rides along unchanged.
     #[inline]
-    fn average_row(counts: &mut [Self], start: usize, n: usize, bits: u32, shift: u8) {
+    fn average_row(counts: &mut [Self], start: usize, n: usize, bits: u32, shift: u8, dither: u32) {
         let Some(w4) = counts.get_mut(start..start + 4).filter(|_| n == 3) else {
             // Not a 3-cell row with a byte after it: one cell at a time, the same rule.
             if let Some(row) = counts.get_mut(start..start + n) {
                 for (k, c) in row.iter_mut().enumerate() {
-                    let m = u32::from(*c);
-                    let mut x = if bits >> k & 1 != 0 { 255 } else { 0 };
-                    for _ in 0..shift {
-                        x = (x + m) >> 1;
-                    }
-                    *c = x as u8;
+                    *c = average_byte(
+                        *c,
+                        bits >> k & 1 != 0,
+                        shift,
+                        (dither >> (8 * (k & 3))) as u8,
+                    );
                 }
             }
             return;
         };
         let mut bytes = [0u8; 4];
         bytes.copy_from_slice(w4);
-        w4.copy_from_slice(&average_word(u32::from_le_bytes(bytes), bits, shift).to_le_bytes());
+        w4.copy_from_slice(
+            &average_word(u32::from_le_bytes(bytes), bits, shift, dither).to_le_bytes(),
+        );
     }
     /// The robot's hot path: one bounds check for the patch, three unaligned word updates.
     #[inline]
-    fn average_patch3(counts: &mut [Self], start: usize, width: usize, config: u32, shift: u8) {
+    fn average_patch3(
+        counts: &mut [Self],
+        start: usize,
+        width: usize,
+        config: u32,
+        shift: u8,
+        dither: u32,
+    ) {
         let Some(area) = counts.get_mut(start..start + 2 * width + 4) else {
             // At the map's last cell there is no byte after the patch: the general path.
             for r in 0..3 {
-                Self::average_row(counts, start + r * width, 3, config >> (3 * r), shift);
+                Self::average_row(
+                    counts,
+                    start + r * width,
+                    3,
+                    config >> (3 * r),
+                    shift,
+                    dither.rotate_right(8 * r as u32),
+                );
             }
             return;
         };
@@ -212,31 +251,49 @@ impl Count for u8 {
             else {
                 continue;
             };
-            *w4 = average_word(u32::from_le_bytes(*w4), config >> (3 * r), shift).to_le_bytes();
+            let d = dither.rotate_right(8 * r as u32);
+            *w4 = average_word(u32::from_le_bytes(*w4), config >> (3 * r), shift, d).to_le_bytes();
         }
     }
 }
 
-/// [`Count::average_row`] of three `u8` cells packed in bytes 0..3 of `m`, towards bits 0..3 of
-/// `bits`: `x ← t`, then `shift` times the bytewise halving add `x ← ⌊(x + m) / 2⌋`. Byte 3
-/// rides along unchanged (its target is itself).
+/// The `u8` rule of [`Count::average_row`] for one cell: moves `m` towards 255 (`occupied`) or
+/// 0 by `⌊(d + u mod 2^s) / 2^s⌋`, `d` the distance, `s = min(shift, 7)`.
 #[inline]
-fn average_word(m: u32, bits: u32, shift: u8) -> u32 {
+pub fn average_byte(m: u8, occupied: bool, shift: u8, u: u8) -> u8 {
+    let s = u32::from(shift.min(7));
+    let d = if occupied {
+        255 - u32::from(m)
+    } else {
+        u32::from(m)
+    };
+    // ≤ 255 + 127 before the shift; the step is ≤ d.
+    let step = ((d + (u32::from(u) & ((1 << s) - 1))) >> s) as u8;
+    if occupied {
+        m.saturating_add(step)
+    } else {
+        m.saturating_sub(step)
+    }
+}
+
+/// [`average_byte`] of three `u8` cells packed in bytes 0..3 of `m`, towards bits 0..3 of
+/// `bits`, with byte `k` of `dither` for cell `k`; byte 3 is unchanged. Branch-free: the bytes
+/// whose target is 255 are complemented so that every target is 0, the distance's quotient and
+/// the dithered remainder's carry are taken bytewise (neither crosses a byte: the remainder
+/// and the dither are < 2^s ≤ 128 each), subtracted, and complemented back.
+#[inline]
+fn average_word(m: u32, bits: u32, shift: u8, dither: u32) -> u32 {
+    const LANES: u32 = 0x0001_0101;
+    let s = u32::from(shift.min(7));
     // Bytes 0..3 = 0xFF where bit k of bits is set.
     let t = bits & 7;
-    let spread = (t & 1) | (t & 2) << 7 | (t & 4) << 14;
-    let mut x = (spread * 0xFF) | (m & 0xFF00_0000);
-    // Bytewise ⌊(x + m) / 2⌋ without carries between bytes.
-    let half = |x: u32| (x & m) + (((x ^ m) & 0xFEFE_FEFE) >> 1);
-    if shift == 3 {
-        // The robot's setting, unrolled.
-        x = half(half(half(x)));
-    } else {
-        for _ in 0..shift {
-            x = half(x);
-        }
-    }
-    x
+    let flip = ((t & 1) | (t & 2) << 7 | (t & 4) << 14) * 0xFF;
+    let d = m ^ flip;
+    let low = ((1 << s) - 1) * LANES;
+    let quotient = (d >> s) & ((0xFF >> s) * LANES);
+    let carry = (((d & low) + (dither & low)) >> s) & LANES;
+    // Per byte the step is ≤ d: no borrow between bytes.
+    (d - (quotient + carry)) ^ flip
 }
 
 /// A candidate configuration with its log-prior (LSB units of [`crate::fixed::LSB_NATS`]).
@@ -404,6 +461,9 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     block_row_words: usize,
     grid: BlockGrid,
     rng: Xoshiro128PlusPlus,
+    /// The estimates' rounding dither (xorshift32, never 0): a generator of its own, so the
+    /// chain draws the same numbers whatever the estimator.
+    dither: u32,
     /// Random patches come every `1 + below(rand_period)` updates (mean 1/p_randPatch; 0 =
     /// never): one random number per random patch instead of one per update.
     rand_period: u32,
@@ -431,6 +491,8 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     /// changed cells mostly share a tile, and this spares them the division and the bitset
     /// (empty when `lo > hi`; emptied whenever a visit takes a mark).
     hot_span: (usize, usize),
+    /// The estimate's averaging shift on this tile visit ([`Estimator::shift_at`]).
+    visit_shift: u8,
     /// Evidence gains in effect (Q8), occupied and free: the configured ones, scaled for the
     /// hybrid term.
     ev_gain: i32,
@@ -547,7 +609,9 @@ where
             && config.evidence_free_q8 <= evidence::MAX_GAIN_Q8
             && match config.estimator {
                 Estimator::Counts => true,
-                Estimator::Average { shift, .. } => (1..=15).contains(&shift),
+                Estimator::Average {
+                    shift, max_shift, ..
+                } => (1..=15).contains(&shift) && (shift..=15).contains(&max_shift),
             };
         if !valid {
             return Err(Error::InvalidModel);
@@ -587,6 +651,8 @@ where
             block_row_words,
             grid: BlockGrid::default(),
             rng,
+            // Odd, so never the generator's fixed point 0.
+            dither: (config.seed as u32 ^ (config.seed >> 32) as u32 ^ 0x9E37_79B9) | 1,
             rand_period,
             rand_gap,
             cx0,
@@ -606,6 +672,7 @@ where
             tiles_y,
             hot: HotTiles::new(tiles_x, tiles_y),
             hot_span: (1, 0),
+            visit_shift: config.estimator.shift_at(0),
             ev_gain: 0,
             ev_free_gain: 0,
             _count: core::marker::PhantomData,
@@ -726,7 +793,9 @@ where
     pub fn note_changed(&mut self, index: usize, before: LogOdds, now: LogOdds) {
         let (lo, hi) = self.hot_span;
         let in_span = lo <= index && index <= hi;
-        if self.config.hot_share > 0 && in_span {
+        // Marks also restart the tile's age, which lengthening estimates read.
+        let marks = self.config.hot_share > 0 || self.config.estimator.lengthens();
+        if marks && in_span {
             // The span's promise: this cell's tile is marked.
             #[cfg(debug_assertions)]
             {
@@ -736,7 +805,7 @@ where
                     "cell {index}: tile ({tx}, {ty})"
                 );
             }
-        } else if self.config.hot_share > 0 {
+        } else if marks {
             let (tx, ty, (x, y)) = self.tile_of(index);
             self.hot.mark(tx, ty);
             // The columns of row y in tile column tx (the first and last tile columns also
@@ -963,8 +1032,9 @@ where
     {
         let t = 1i32 << self.config.tile_shift;
         let r = self.rng.next_u32();
+        // A visit takes a mark or ages a tile: either way the span's promise ends.
+        self.hot_span = (1, 0);
         let hot = if (r & 0xff) < u32::from(self.config.hot_share) {
-            self.hot_span = (1, 0);
             self.hot.take()
         } else {
             None
@@ -987,6 +1057,10 @@ where
                 below(self.rng.next_u32(), self.tiles_y) as i32,
             ),
         };
+        self.visit_shift = self
+            .config
+            .estimator
+            .shift_at(self.hot.visit_age(tx as u32, ty as u32));
         let x0 = self.cx0 + tx * t;
         let y0 = self.cy0 + ty * t;
         let (x1, y1) = ((x0 + t - 1).min(self.cx1), (y0 + t - 1).min(self.cy1));
@@ -1462,12 +1536,7 @@ where
         total: u32,
         drawn: u16,
     ) {
-        let Estimator::Average {
-            shift,
-            rao_blackwell,
-            ..
-        } = self.config.estimator
-        else {
+        let Estimator::Average { rao_blackwell, .. } = self.config.estimator else {
             return;
         };
         if !rao_blackwell || total == 0 {
@@ -1492,6 +1561,7 @@ where
             }
         }
         let tot = tot.max(1);
+        let shift = self.visit_shift;
         self.for_patch_counts(centre, |bit, c| {
             let o = occ.get(bit as usize).copied().unwrap_or(0);
             *c = c.ema((o << 16) / tot, shift);
@@ -1501,9 +1571,16 @@ where
     /// [`Estimator::Average`] towards a configuration: each cell's value is 0 or 1.
     #[inline]
     fn average_config(&mut self, centre: CellCoord, config: u16) {
-        let Estimator::Average { shift, .. } = self.config.estimator else {
+        if self.config.estimator == Estimator::Counts {
             return;
-        };
+        }
+        let shift = self.visit_shift;
+        // xorshift32 (Marsaglia 2003): full period over the non-zero words.
+        let mut dither = self.dither;
+        dither ^= dither << 13;
+        dither ^= dither >> 17;
+        dither ^= dither << 5;
+        self.dither = dither;
         let size = i32::from(self.prior.size());
         let h = size / 2;
         let width = usize::from(self.geometry.width());
@@ -1511,14 +1588,21 @@ where
         if size == 3 {
             // Patch centres keep the prior's margin from the edge: the patch is in the map.
             let start = (centre.y - 1) as usize * width + (centre.x - 1) as usize;
-            N::average_patch3(counts, start, width, u32::from(config), shift);
+            N::average_patch3(counts, start, width, u32::from(config), shift, dither);
             return;
         }
         for (r, dy) in (-h..=h).enumerate() {
             // Patch centres keep the prior's margin from the edge: the row is in the map.
             let start = (centre.y + dy) as usize * width + (centre.x - h) as usize;
             let bits = u32::from(config) >> (r as i32 * size);
-            N::average_row(counts, start, size as usize, bits, shift);
+            N::average_row(
+                counts,
+                start,
+                size as usize,
+                bits,
+                shift,
+                dither.rotate_right(8 * r as u32),
+            );
         }
     }
 

@@ -15,6 +15,8 @@ pub(crate) const MAX_GROUPS: usize = 1024;
 #[derive(Clone, Debug)]
 pub(crate) struct HotTiles {
     bits: [u32; MAX_GROUPS / 32],
+    /// Visits since the group was last marked, saturating.
+    ages: [u8; MAX_GROUPS],
     /// Tiles per group side, log2.
     group_shift: u32,
     groups_x: u32,
@@ -35,6 +37,7 @@ impl HotTiles {
         let groups_x = tiles_x.div_ceil(1 << group_shift);
         HotTiles {
             bits: [0; MAX_GROUPS / 32],
+            ages: [0; MAX_GROUPS],
             group_shift,
             groups_x,
             groups: groups_x * tiles_y.div_ceil(1 << group_shift),
@@ -43,11 +46,14 @@ impl HotTiles {
         }
     }
 
-    /// Marks tile `(tx, ty)`.
+    /// Marks tile `(tx, ty)` and restarts its group's age.
     #[inline]
     pub(crate) fn mark(&mut self, tx: u32, ty: u32) {
-        let g = (ty >> self.group_shift) * self.groups_x + (tx >> self.group_shift);
+        let g = self.group(tx, ty);
         if g < self.groups {
+            if let Some(a) = self.ages.get_mut(g as usize) {
+                *a = 0;
+            }
             if let Some(w) = self.bits.get_mut((g / 32) as usize) {
                 let bit = 1 << (g % 32);
                 if *w & bit == 0 {
@@ -58,10 +64,31 @@ impl HotTiles {
         }
     }
 
+    /// Tile `(tx, ty)`'s group index (`≥ groups` when out of range).
+    #[inline]
+    fn group(&self, tx: u32, ty: u32) -> u32 {
+        (ty >> self.group_shift) * self.groups_x + (tx >> self.group_shift)
+    }
+
+    /// Tile `(tx, ty)`'s group age — visits since it was last marked — before this visit,
+    /// which it counts (0 out of range).
+    #[inline]
+    pub(crate) fn visit_age(&mut self, tx: u32, ty: u32) -> u8 {
+        let g = self.group(tx, ty);
+        match self.ages.get_mut(g as usize) {
+            Some(a) if g < self.groups => {
+                let age = *a;
+                *a = age.saturating_add(1);
+                age
+            }
+            _ => 0,
+        }
+    }
+
     /// Whether tile `(tx, ty)`'s group is marked.
     #[cfg(debug_assertions)]
     pub(crate) fn is_marked(&self, tx: u32, ty: u32) -> bool {
-        let g = (ty >> self.group_shift) * self.groups_x + (tx >> self.group_shift);
+        let g = self.group(tx, ty);
         g < self.groups
             && self
                 .bits
@@ -69,9 +96,10 @@ impl HotTiles {
                 .is_some_and(|w| w >> (g % 32) & 1 != 0)
     }
 
-    /// Clears every mark.
+    /// Clears every mark and age.
     pub(crate) fn clear(&mut self) {
         self.bits = [0; MAX_GROUPS / 32];
+        self.ages = [0; MAX_GROUPS];
         self.marked = 0;
     }
 
@@ -139,6 +167,22 @@ mod tests {
         h.mark(0, 0);
         h.mark(15, 15);
         assert_eq!(h.take(), Some((0, 0, 1)));
+    }
+
+    #[test]
+    fn ages_count_visits_since_the_last_mark() {
+        let mut h = HotTiles::new(16, 16);
+        assert_eq!((h.visit_age(2, 3), h.visit_age(2, 3)), (0, 1));
+        assert_eq!(h.visit_age(4, 3), 0, "ages are per tile");
+        h.mark(2, 3);
+        assert_eq!(h.visit_age(2, 3), 0, "a mark restarts the age");
+        for _ in 0..300 {
+            h.visit_age(5, 5);
+        }
+        assert_eq!(h.visit_age(5, 5), 255, "saturates");
+        assert_eq!(h.visit_age(99, 99), 0, "out of range");
+        h.clear();
+        assert_eq!(h.visit_age(5, 5), 0);
     }
 
     #[test]
