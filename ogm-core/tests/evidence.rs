@@ -419,3 +419,52 @@ fn estimates_restart_only_when_evidence_appears_or_flips() {
     s.note_changed(fresh, LogOdds(0), free);
     assert!(restarted(&s, fresh), "{}", s.count(fresh));
 }
+
+#[test]
+fn an_average_that_would_shorten_is_rejected() {
+    let g = GridGeometry::new(40, 40, 50, 0, 0).unwrap();
+    let mut cfg = evidence_config(1);
+    cfg.estimator = Estimator::Average {
+        shift: 3,
+        max_shift: 2,
+        reset_on_change: true,
+        rao_blackwell: false,
+    };
+    let buf = Buffers {
+        sample: vec![0; g.len().div_ceil(32)],
+        counts: vec![0u8; g.len()],
+        local: vec![LocalRay::default(); 1],
+        blocks: vec![0; block_words(1, cfg.block_grid)],
+    };
+    let s = Gibbs::new(g, BorderPrior::default(), ForwardModel::pcsm(), cfg, buf);
+    assert!(matches!(s, Err(ogm_core::Error::InvalidModel)));
+}
+
+#[test]
+fn settled_tiles_average_longer() {
+    // The same chain (the estimator draws no chain numbers), read out by a fixed and by a
+    // lengthening average: once the tiles have been visited many times without a change, the
+    // lengthening estimates move much less between two snapshots.
+    let g = GridGeometry::new(40, 40, 50, 0, 0).unwrap();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
+    let map = random_map(&mut rng, g);
+    let wobble = |max_shift: u8| {
+        let mut cfg = evidence_config(3);
+        cfg.estimator = Estimator::Average {
+            shift: 3,
+            max_shift,
+            reset_on_change: true,
+            rao_blackwell: false,
+        };
+        let (mut s, mut st) = setup(g, cfg);
+        s.reset(&map, &mut st).unwrap();
+        s.step(&mut st, &map, 60_000);
+        let before: Vec<u32> = (0..g.len()).map(|i| s.count(i)).collect();
+        s.step(&mut st, &map, 2_000);
+        let moved: u32 = (0..g.len()).map(|i| s.count(i).abs_diff(before[i])).sum();
+        (moved, s.stats())
+    };
+    let ((fixed, a), (long, b)) = (wobble(3), wobble(7));
+    assert_eq!(a, b, "the same chain");
+    assert!(long * 3 < fixed, "lengthening {long} vs fixed {fixed}");
+}

@@ -122,6 +122,31 @@ mod tests {
     use crate::LogOdds;
 
     #[test]
+    fn the_average_lengthens_by_one_shift_per_doubling_of_the_age() {
+        let e = Estimator::Average {
+            shift: 3,
+            max_shift: 7,
+            reset_on_change: true,
+            rao_blackwell: false,
+        };
+        let shifts: std::vec::Vec<u8> = [0u8, 1, 2, 3, 6, 7, 14, 15, 255]
+            .iter()
+            .map(|&a| e.shift_at(a))
+            .collect();
+        assert_eq!(shifts, [3, 4, 4, 5, 5, 6, 6, 7, 7]);
+        assert!(e.lengthens());
+        let fixed = Estimator::Average {
+            shift: 3,
+            max_shift: 3,
+            reset_on_change: true,
+            rao_blackwell: false,
+        };
+        assert!(!fixed.lengthens());
+        assert_eq!(fixed.shift_at(200), 3);
+        assert_eq!(Estimator::Counts.shift_at(9), 0);
+    }
+
+    #[test]
     fn probability_table_matches_the_float_probability() {
         for raw in (-8192i32..=8192)
             .step_by(7)
