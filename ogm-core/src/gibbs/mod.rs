@@ -128,7 +128,7 @@ pub trait Count: Copy + Default {
                 3,
                 config >> (3 * r),
                 shift,
-                dither.rotate_right(8 * r as u32),
+                row_dither(dither, r),
             );
         }
     }
@@ -239,7 +239,7 @@ impl Count for u8 {
                     3,
                     config >> (3 * r),
                     shift,
-                    dither.rotate_right(8 * r as u32),
+                    row_dither(dither, r),
                 );
             }
             return;
@@ -251,10 +251,17 @@ impl Count for u8 {
             else {
                 continue;
             };
-            let d = dither.rotate_right(8 * r as u32);
+            let d = row_dither(dither, r);
             *w4 = average_word(u32::from_le_bytes(*w4), config >> (3 * r), shift, d).to_le_bytes();
         }
     }
+}
+
+/// The dither of row `r` of a patch: the patch's word rotated by `8 r` bits, so the three cells
+/// of a column take different bytes. Every averaging path takes its rows' dither from here.
+#[inline]
+fn row_dither(dither: u32, r: usize) -> u32 {
+    dither.rotate_right(8 * r as u32)
 }
 
 /// The `u8` rule of [`Count::average_row`] for one cell: moves `m` towards 255 (`occupied`) or
@@ -1601,7 +1608,7 @@ where
                 size as usize,
                 bits,
                 shift,
-                dither.rotate_right(8 * r as u32),
+                row_dither(dither, r),
             );
         }
     }
