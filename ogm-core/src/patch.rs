@@ -108,6 +108,40 @@ pub const fn centre_of(config: u16) -> bool {
     config & CENTRE_BIT != 0
 }
 
+/// The border's cells in order around the ring (anticlockwise from the bottom-left corner):
+/// row 0 left to right, column 4 upwards, row 4 right to left, column 0 downwards.
+pub const RING: [u8; 16] = [0, 1, 2, 3, 4, 13, 14, 15, 9, 8, 7, 6, 5, 12, 11, 10];
+
+/// The border with every *speck* flipped: a ring cell whose state differs from both of its
+/// neighbours along the ring ([`RING`]). The nearest "smooth" border, which the prior's
+/// back-off looks up first when a border is not stored: a lone occupied cell on a free ring (or
+/// a lone gap in a wall) is what a random patch or one noisy cell leaves, and the table knows the
+/// border without it. Commutes with the eight [`Dihedral`] transforms (they map the ring onto
+/// itself, keeping each cell's two ring neighbours). Branch-free: each ring neighbour's state is
+/// gathered with masks and shifts.
+#[inline]
+pub const fn despeckle(border: u16) -> u16 {
+    let x = border as u32;
+    // Bit i of `next` / `prev` holds the state of cell i's successor / predecessor on the ring.
+    let next = (x >> 1) & 0x000F // b0..b3 ← b1..b4
+        | (x >> 9) & 0x0010 // b4 ← b13
+        | (x >> 1) & 0x6000 // b13, b14 ← b14, b15
+        | (x << 6) & 0x8000 // b15 ← b9
+        | (x << 1) & 0x03C0 // b6..b9 ← b5..b8
+        | (x >> 7) & 0x0020 // b5 ← b12
+        | (x << 1) & 0x1800 // b11, b12 ← b10, b11
+        | (x << 10) & 0x0400; // b10 ← b0
+    let prev = (x << 1) & 0x001E // b1..b4 ← b0..b3
+        | (x << 9) & 0x2000 // b13 ← b4
+        | (x << 1) & 0xC000 // b14, b15 ← b13, b14
+        | (x >> 6) & 0x0200 // b9 ← b15
+        | (x >> 1) & 0x01E0 // b5..b8 ← b6..b9
+        | (x << 7) & 0x1000 // b12 ← b5
+        | (x >> 1) & 0x0C00 // b10, b11 ← b11, b12
+        | (x >> 10) & 0x0001; // b0 ← b10
+    (x ^ ((x ^ next) & (x ^ prev))) as u16
+}
+
 /// The 8 neighbours of a 3×3 config's centre (L = 1 border), row-major skipping the centre.
 #[inline]
 pub const fn neighbours_of(config: u16) -> u8 {
@@ -300,6 +334,41 @@ mod tests {
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
         (*state >> 33) as u32
+    }
+
+    #[test]
+    fn despeckle_flips_exactly_the_lone_ring_cells() {
+        for border in 0..=u16::MAX {
+            let cell = |i: usize| border >> RING[i % 16] & 1;
+            let mut want = border;
+            for i in 0..16 {
+                if cell(i) != cell(i + 1) && cell(i) != cell(i + 15) {
+                    want ^= 1 << RING[i];
+                }
+            }
+            assert_eq!(despeckle(border), want, "border {border:#06x}");
+            for d in Dihedral::ALL {
+                assert_eq!(despeckle(d.border(border)), d.border(want));
+            }
+        }
+        // A lone occupied cell on a free ring, a lone gap in a full one.
+        assert_eq!(despeckle(1 << 7), 0);
+        assert_eq!(despeckle(!(1 << 12)), u16::MAX);
+        // RING is a permutation of the 16 border bits, consecutive cells adjacent in the window.
+        assert_eq!(RING.iter().fold(0u32, |m, &b| m | 1 << b), 0xFFFF);
+        let at = |i: usize| {
+            let w = window_from(0, 1 << RING[i % 16]).trailing_zeros() as i32;
+            (w / 5, w % 5)
+        };
+        for i in 0..16 {
+            let ((r0, c0), (r1, c1)) = (at(i), at(i + 1));
+            assert_eq!(
+                (r0 - r1).abs() + (c0 - c1).abs(),
+                1,
+                "ring cells {i}, {}",
+                i + 1
+            );
+        }
     }
 
     #[test]

@@ -93,14 +93,15 @@ impl PatchPrior for NeighbourPrior {
 
 /// The data-driven L = 9 prior conditioned on the 16-cell border (the paper's "MCMC + border",
 /// the default): [`crate::prior::candidates_into`], with its documented back-off for unseen
-/// borders (nearby borders, then the unconditioned prior).
+/// borders (the despeckled border, nearby borders, then the unconditioned prior).
 ///
-/// Keeps a 256-entry direct-mapped cache (1 KiB) of border → table position, because the
-/// borders of a map repeat (straight walls, open space): a hit replaces the table's bucket and
-/// binary search by one multiply and one load. Back-off results (borders the table lacks) are not
-/// cached: they are diverse (10 825 distinct in 96 104 back-offs of one simulated run, where even
-/// 512 cached results hit 21–23 % of the time), so their lookup is made cheap instead (the table's
-/// bit filter, [`crate::prior`]).
+/// Keeps a 256-entry direct-mapped cache (1 KiB) of border → table position (of the border or
+/// of its despeckled image, [`crate::prior::smooth_slot`]), because the borders of a map repeat
+/// (straight walls, open space): a hit replaces the table's bucket and binary search by one
+/// multiply and one load. The union of nearby borders is not cached: the borders that need it
+/// are diverse (10 825 distinct in 96 104 back-offs of one simulated run, where even 512 cached
+/// results hit 21–23 % of the time), so their lookup is made cheap instead (the table's bit
+/// filter, [`crate::prior`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BorderPrior {
     /// `border << 16 | slot + 1` (`0` in the low half: not stored), or [`EMPTY`].
@@ -132,10 +133,6 @@ impl PatchPrior for BorderPrior {
         2
     }
     fn candidates(&self, border: u16, out: &mut [PatchCandidate]) -> usize {
-        // The common case, a stored border: straight from the flash table.
-        if let Some(c) = crate::prior::border_candidates(border) {
-            return copy_candidates(c, out);
-        }
         let mut buf = [crate::prior::Candidate {
             config: 0,
             log_prior: 0,
@@ -159,7 +156,9 @@ impl PatchPrior for BorderPrior {
         let slot = if e != EMPTY && (e >> 16) as u16 == border {
             (e & 0xFFFF) as u16
         } else {
-            let s = crate::prior::border_slot(border).map_or(0, |i| i.saturating_add(1));
+            // A stored border, or its despeckled image: the back-off's first two steps, which
+            // take one border's flash tables whole (the hot path).
+            let s = crate::prior::smooth_slot(border).map_or(0, |(i, _)| i.saturating_add(1));
             if let Some(c) = self.cache.get_mut(h) {
                 *c = u32::from(border) << 16 | u32::from(s);
             }
