@@ -1414,22 +1414,31 @@ where
             self.ev_gain,
             self.ev_free_gain,
         );
-        // Log-weights; the extra candidate last.
-        let mut w = [0i32; MAX_CANDIDATES + 1];
-        for ((wi, &c), &lp) in w.iter_mut().zip(configs).zip(log_priors) {
-            *wi = i32::from(lp) + ev.of(c);
+        // Log-weights, the extra candidate last, and the best of them in the same pass; then,
+        // in place, the weights (`weights_q16`'s, one array instead of two).
+        let mut q = [0u32; MAX_CANDIDATES + 1];
+        let mut best = i32::MIN;
+        for ((qi, &c), &lp) in q.iter_mut().zip(configs).zip(log_priors) {
+            let w = i32::from(lp) + ev.of(c);
+            best = best.max(w);
+            *qi = w as u32;
         }
         let n = match extra {
             Some(d) => {
-                if let Some(wi) = w.get_mut(k) {
-                    *wi = floor + ev.of(d);
+                let w = floor + ev.of(d);
+                best = best.max(w);
+                if let Some(qi) = q.get_mut(k) {
+                    *qi = w as u32;
                 }
                 k + 1
             }
             None => k,
         };
-        let mut q = [0u32; MAX_CANDIDATES + 1];
-        let total = weights_q16(w.get(..n).unwrap_or(&[]), &mut q);
+        let mut total = 0u32;
+        for qi in q.iter_mut().take(n) {
+            *qi = weight_q16(best.saturating_sub(*qi as i32).unsigned_abs());
+            total = total.saturating_add(*qi);
+        }
         let config_of = |j: usize| configs.get(j).copied().or(extra).unwrap_or(current);
         let mut r = below(self.rng.next_u32(), total.max(1));
         let mut new = first;
