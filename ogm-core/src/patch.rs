@@ -341,9 +341,9 @@ mod tests {
         for border in 0..=u16::MAX {
             let cell = |i: usize| border >> RING[i % 16] & 1;
             let mut want = border;
-            for i in 0..16 {
+            for (i, &b) in RING.iter().enumerate() {
                 if cell(i) != cell(i + 1) && cell(i) != cell(i + 15) {
-                    want ^= 1 << RING[i];
+                    want ^= 1 << b;
                 }
             }
             assert_eq!(despeckle(border), want, "border {border:#06x}");

@@ -61,6 +61,25 @@ impl Estimator {
         matches!(self, Estimator::Average { shift, max_shift, .. } if max_shift > shift)
     }
 
+    /// Whether this build can run the estimator (Rao-Blackwellised averages need the
+    /// `rao-blackwell` feature).
+    #[inline]
+    pub fn available(self) -> bool {
+        cfg!(feature = "rao-blackwell") || !self.rao_blackwellised()
+    }
+
+    /// Whether the estimator averages conditional probabilities instead of draws.
+    #[inline]
+    pub fn rao_blackwellised(self) -> bool {
+        matches!(
+            self,
+            Estimator::Average {
+                rao_blackwell: true,
+                ..
+            }
+        )
+    }
+
     /// Whether the estimator restarts cells whose evidence changed.
     #[inline]
     pub fn resets(self) -> bool {
@@ -120,6 +139,26 @@ const fn build_prob_table() -> [u32; 129] {
 mod tests {
     use super::*;
     use crate::LogOdds;
+
+    #[test]
+    fn rao_blackwellised_averages_need_their_feature() {
+        let rb = Estimator::Average {
+            shift: 3,
+            max_shift: 3,
+            reset_on_change: false,
+            rao_blackwell: true,
+        };
+        assert!(rb.rao_blackwellised());
+        assert_eq!(rb.available(), cfg!(feature = "rao-blackwell"));
+        assert!(Estimator::Counts.available() && !Estimator::Counts.rao_blackwellised());
+        let draws = Estimator::Average {
+            shift: 3,
+            max_shift: 3,
+            reset_on_change: false,
+            rao_blackwell: false,
+        };
+        assert!(draws.available() && !draws.rao_blackwellised());
+    }
 
     #[test]
     fn the_average_lengthens_by_one_shift_per_doubling_of_the_age() {

@@ -611,6 +611,7 @@ where
             && (1..=MAX_BLOCK_GRID).contains(&config.block_grid)
             && config.p_rand_patch.is_finite()
             && config.data.available()
+            && config.estimator.available()
             && config.floor_log_prior <= 0
             && config.evidence_gain_q8 <= evidence::MAX_GAIN_Q8
             && config.evidence_free_q8 <= evidence::MAX_GAIN_Q8
@@ -1406,14 +1407,19 @@ where
             return first;
         }
         let floor = i32::from(self.config.floor_log_prior);
-        // The patch's log-odds, read only now that weights are needed.
-        let ev = evidence::PatchTerms::new(
-            map,
-            usize::from(self.geometry.width()),
-            centre,
-            self.ev_gain,
-            self.ev_free_gain,
-        );
+        // The patch's log-odds, read only now that weights are needed, and only if a cell has
+        // any (unobserved patches, common in the uniform share of tile visits, weigh by the
+        // prior alone).
+        let ev = (known != 0).then(|| {
+            evidence::PatchTerms::new(
+                map,
+                usize::from(self.geometry.width()),
+                centre,
+                self.ev_gain,
+                self.ev_free_gain,
+            )
+        });
+        let ev = evidence::MaybeTerms(ev.as_ref());
         // Log-weights, the extra candidate last, and the best of them in the same pass; then,
         // in place, the weights (`weights_q16`'s, one array instead of two).
         let mut q = [0u32; MAX_CANDIDATES + 1];
@@ -1449,14 +1455,7 @@ where
             }
             r -= qj;
         }
-        let rb = matches!(
-            self.config.estimator,
-            Estimator::Average {
-                rao_blackwell: true,
-                ..
-            }
-        );
-        if rb {
+        if cfg!(feature = "rao-blackwell") && self.config.estimator.rao_blackwellised() {
             let mut cands = [PatchCandidate::default(); MAX_CANDIDATES + 1];
             for (j, c) in cands.iter_mut().enumerate().take(n) {
                 c.config = config_of(j);
@@ -1555,7 +1554,7 @@ where
         let Estimator::Average { rao_blackwell, .. } = self.config.estimator else {
             return;
         };
-        if !rao_blackwell || total == 0 {
+        if !cfg!(feature = "rao-blackwell") || !rao_blackwell || total == 0 {
             self.average_config(centre, drawn);
             return;
         }
@@ -1859,6 +1858,24 @@ where
     }
 
     /// Advances the marginal-accumulation cursor by L cells; counts sweeps.
+    /// [`Gibbs::accumulate`] after `n` updates: at once for [`Estimator::Average`], whose
+    /// estimates move in the update itself (only the sweep count is kept here).
+    fn accumulate_n(&mut self, n: u32) {
+        if self.config.estimator == Estimator::Counts {
+            for _ in 0..n {
+                self.accumulate();
+            }
+            return;
+        }
+        // As `n` single steps: each wraps at `sweep_len` (≥ 1) and counts a sweep.
+        // (`accumulate` stays out of line: inlined in the loop above it cost 2 KiB of flash.)
+        let total = self.in_sweep + n;
+        let len = self.sweep_len.max(1);
+        self.stats.sweeps = self.stats.sweeps.saturating_add(total / len);
+        self.in_sweep = total % len;
+    }
+
+    #[inline(never)]
     fn accumulate(&mut self) {
         if self.config.estimator != Estimator::Counts {
             // Only the sweep count.

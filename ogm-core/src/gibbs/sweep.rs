@@ -63,7 +63,8 @@ where
         debug_assert_eq!(self.config.data, DataTerm::Evidence);
         // The map and the sample may have changed since the last call (a scan, seeding).
         self.raster.valid = false;
-        for _ in 0..budget {
+        let mut left = budget;
+        while left > 0 {
             if self.visit_left == 0 {
                 self.start_visit(store);
                 let (x0, y0, x1, y1) = self.tile;
@@ -75,10 +76,19 @@ where
                 self.raster.y = y0;
                 self.raster.valid = false;
             }
-            self.visit_left -= 1;
-            self.raster_update(store, map);
-            self.accumulate();
-            self.raster_advance();
+            if !self.raster.valid {
+                self.raster_load(map);
+            }
+            // The rest of the segment, of the visit and of the budget, whichever ends first
+            // (≥ 1 each: the segment holds the current centre).
+            let in_segment = (self.raster.x_start + self.raster.span - self.raster.x).max(1) as u32;
+            let n = left.min(self.visit_left).min(in_segment);
+            self.raster_run(store, map, n);
+            self.visit_left -= n;
+            left -= n;
+            self.stats.updates += u64::from(n);
+            self.accumulate_n(n);
+            self.raster_advance(n);
         }
         budget
     }
@@ -123,12 +133,13 @@ where
         self.raster.valid = true;
     }
 
-    /// Moves to the next centre of the tile in raster order; past the segment's end the next
-    /// update reads a new one.
+    /// Moves `n` centres on in the tile's raster order, within the current segment or just past
+    /// its end (then the next update reads a new one, on the next row past the tile's last
+    /// column).
     #[inline]
-    fn raster_advance(&mut self) {
+    fn raster_advance(&mut self, n: u32) {
         let (x0, y0, x1, y1) = self.tile;
-        let (x, y) = (self.raster.x + 1, self.raster.y);
+        let (x, y) = (self.raster.x + n as i32, self.raster.y);
         if x > x1 {
             self.raster.x = x0;
             self.raster.y = if y >= y1 { y0 } else { y + 1 };
@@ -141,60 +152,65 @@ where
         }
     }
 
-    /// One update at the raster position.
-    fn raster_update<S, R>(&mut self, store: &mut RayStore<S, R>, map: &[LogOdds])
+    /// `n` updates at consecutive centres of the loaded segment, from the current one (which the
+    /// caller advances past afterwards). The segment's rows are locals for the run: each update
+    /// shifts its window and masks out of them, and writes a changed patch back into them (and,
+    /// through [`Gibbs::apply`], into the sample). Not inlined: one copy of the hot loop (inlined
+    /// into `step` it was duplicated, +3.6 KiB of flash).
+    #[inline(never)]
+    fn raster_run<S, R>(&mut self, store: &mut RayStore<S, R>, map: &[LogOdds], n: u32)
     where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
-        if !self.raster.valid {
-            self.raster_load(map);
-        }
-        self.stats.updates += 1;
-        let centre = CellCoord {
-            x: self.raster.x,
-            y: self.raster.y,
-        };
-        // The centre's offset in the segment (0 ≤ s < span ≤ 27).
-        let sh = (self.raster.x - self.raster.x_start) as u32 & 31;
-        let [r0, r1, r2, r3, r4] = self.raster.rows.map(|r| (r >> sh) & 0x1F);
-        let window = r0 | r1 << 5 | r2 << 10 | r3 << 15 | r4 << 20;
-        let (current, border) = (
-            crate::patch::patch_of(window),
-            crate::patch::border_of(window),
-        );
-        let [k0, k1, k2] = self.raster.known.map(|k| (k >> sh) & 7);
-        let [o0, o1, o2] = self.raster.occupied.map(|o| (o >> sh) & 7);
-        let (known, occupied) = (k0 | k1 << 3 | k2 << 6, o0 | o1 << 3 | o2 << 6);
-        // The incremental window and masks equal a fresh read (checked in every debug build).
-        debug_assert_eq!((current, border), self.config_and_border(centre));
-        debug_assert_eq!(
-            {
-                let e = super::patch_evidence(map, usize::from(self.geometry.width()), centre, 3);
-                (u32::from(e.known), u32::from(e.occupied))
-            },
-            (known, occupied)
-        );
-        let new = if self.random_patch_due() {
-            self.random_patch(store, centre, current)
-        } else if let Some((configs, log_priors)) = self.prior.table(border) {
-            let masks = (known as u16, occupied as u16);
-            let new = self.evidence_update(map, centre, current, masks, configs, log_priors);
+        let mut rows = self.raster.rows;
+        let (known_rows, occupied_rows) = (self.raster.known, self.raster.occupied);
+        let (x_start, y) = (self.raster.x_start, self.raster.y);
+        for x in self.raster.x..self.raster.x + n as i32 {
+            let centre = CellCoord { x, y };
+            // The centre's offset in the segment (0 ≤ s < span ≤ 27).
+            let sh = (x - x_start) as u32 & 31;
+            let [r0, r1, r2, r3, r4] = rows.map(|r| (r >> sh) & 0x1F);
+            let window = r0 | r1 << 5 | r2 << 10 | r3 << 15 | r4 << 20;
+            let (current, border) = (
+                crate::patch::patch_of(window),
+                crate::patch::border_of(window),
+            );
+            let [k0, k1, k2] = known_rows.map(|k| (k >> sh) & 7);
+            let [o0, o1, o2] = occupied_rows.map(|o| (o >> sh) & 7);
+            let (known, occupied) = (k0 | k1 << 3 | k2 << 6, o0 | o1 << 3 | o2 << 6);
+            // The incremental window and masks equal a fresh read (checked in every debug build).
+            debug_assert_eq!((current, border), self.config_and_border(centre));
+            debug_assert_eq!(
+                {
+                    let e =
+                        super::patch_evidence(map, usize::from(self.geometry.width()), centre, 3);
+                    (u32::from(e.known), u32::from(e.occupied))
+                },
+                (known, occupied)
+            );
+            let new = if self.random_patch_due() {
+                self.random_patch(store, centre, current)
+            } else if let Some((configs, log_priors)) = self.prior.table(border) {
+                let masks = (known as u16, occupied as u16);
+                let new = self.evidence_update(map, centre, current, masks, configs, log_priors);
+                if new != current {
+                    self.stats.changed += 1;
+                    self.apply(store, centre, new, None);
+                }
+                new
+            } else {
+                // An unseen border: the prior's back-off, through the general path.
+                self.update_at(store, map, centre, current, border)
+            };
             if new != current {
-                self.stats.changed += 1;
-                self.apply(store, centre, new, None);
-            }
-            new
-        } else {
-            // An unseen border: the prior's back-off, through the general path.
-            self.update_at(store, map, centre, current, border)
-        };
-        if new != current {
-            // The patch's cells in the segment's rows: columns sh + 1 ..= sh + 3.
-            for (r, row) in self.raster.rows.iter_mut().skip(1).take(3).enumerate() {
-                let bits = u32::from(new) >> (3 * r) & 7;
-                *row = (*row & !(7 << (sh + 1))) | bits << (sh + 1);
+                // The patch's cells in the segment's rows: columns sh + 1 ..= sh + 3.
+                for (r, row) in rows.iter_mut().skip(1).take(3).enumerate() {
+                    let bits = u32::from(new) >> (3 * r) & 7;
+                    *row = (*row & !(7 << (sh + 1))) | bits << (sh + 1);
+                }
             }
         }
+        self.raster.rows = rows;
     }
 }
