@@ -285,6 +285,37 @@ pub fn slot_tables(slot: u16) -> Option<(&'static [u16], &'static [i16])> {
     ))
 }
 
+/// Bits a candidate slice's start in the flash tables takes ([`slot_span`]): the sampler's
+/// border cache packs a start, a length − 1 (4 bits: at most [`K_MAX`] = 16 candidates) and a
+/// tag into 32 bits.
+pub const SPAN_START_BITS: u32 = 13;
+const _: () = assert!(
+    K_MAX <= 16 && table::CAND_CONFIG.len() < 1 << SPAN_START_BITS,
+    "the border cache's packing needs more bits"
+);
+
+/// Where the candidates of stored border `slot` ([`border_slot`]) start in the flash tables,
+/// and how many there are (1 ..= [`K_MAX`]): what [`span_tables`] takes.
+#[inline]
+pub fn slot_span(slot: u16) -> Option<(u16, u8)> {
+    let i = usize::from(slot);
+    let s = *table::CAND_START.get(i)?;
+    let e = *table::CAND_START.get(i + 1)?;
+    let n = u8::try_from(e.checked_sub(s)?).ok()?;
+    (n > 0).then_some((s, n))
+}
+
+/// The `len` candidates (configurations, log-priors) from `start` in the flash tables
+/// ([`slot_span`]).
+#[inline]
+pub fn span_tables(start: u16, len: u8) -> Option<(&'static [u16], &'static [i16])> {
+    let r = usize::from(start)..usize::from(start) + usize::from(len);
+    Some((
+        table::CAND_CONFIG.get(r.clone())?,
+        table::CAND_LOG_PRIOR.get(r)?,
+    ))
+}
+
 /// Whether `border` has its own entry in the table (otherwise [`candidates`] falls back).
 #[inline]
 pub fn border_seen(border: u16) -> bool {

@@ -348,8 +348,30 @@ fn border_prior_caches_return_what_the_table_does() {
                     .zip(&x[..n])
                     .all(|(l, p)| i32::from(*l) == p.log_prior));
             }
-            None => assert!(!ogm_core::prior::border_seen(b)),
+            None => assert!(ogm_core::prior::smooth_slot(b).is_none()),
         }
+    }
+}
+
+#[test]
+fn border_cache_packs_every_border_s_slice_exactly() {
+    use ogm_core::gibbs::PatchPrior;
+    use ogm_core::prior::{slot_span, slot_tables, smooth_slot, span_tables};
+    let mut cached = BorderPrior::default();
+    // Each border twice in a row (a miss, then a hit), every entry filled and replaced.
+    for b in 0..=u16::MAX {
+        let want = smooth_slot(b).and_then(|(s, _)| slot_tables(s));
+        if let Some((s, _)) = smooth_slot(b) {
+            let (start, len) = slot_span(s).unwrap();
+            assert_eq!(span_tables(start, len), want);
+        }
+        assert_eq!(cached.table(b), want, "border {b:#06x}");
+        assert_eq!(cached.table(b), want, "border {b:#06x}, cached");
+    }
+    // Borders sharing a cache entry (same low byte xor hash of the high byte) evict each other.
+    for b in [0x0000u16, 0x0100, 0xFFFF, 0x00FF, 0x1234, 0x3412] {
+        let want = smooth_slot(b).and_then(|(s, _)| slot_tables(s));
+        assert_eq!(cached.table(b), want, "border {b:#06x}");
     }
 }
 

@@ -95,20 +95,25 @@ impl PatchPrior for NeighbourPrior {
 /// the default): [`crate::prior::candidates_into`], with its documented back-off for unseen
 /// borders (the despeckled border, nearby borders, then the unconditioned prior).
 ///
-/// Keeps a 256-entry direct-mapped cache (1 KiB) of border → table position (of the border or
+/// Keeps a 256-entry direct-mapped cache (1 KiB) of border → candidate slice (of the border or
 /// of its despeckled image, [`crate::prior::smooth_slot`]), because the borders of a map repeat
-/// (straight walls, open space): a hit replaces the table's bucket and binary search by one
-/// multiply and one load. The union of nearby borders is not cached: the borders that need it
-/// are diverse (10 825 distinct in 96 104 back-offs of one simulated run, where even 512 cached
-/// results hit 21–23 % of the time), so their lookup is made cheap instead (the table's bit
-/// filter, [`crate::prior`]).
+/// (straight walls, open space): a hit replaces the table's bucket, binary search and slice
+/// bounds by a load and a compare. The union of nearby borders is not cached: the borders that
+/// need it are diverse (10 825 distinct in 96 104 back-offs of one simulated run, where even
+/// 512 cached results hit 21–23 % of the time), so their lookup is made cheap instead (the
+/// table's bit filter, [`crate::prior`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BorderPrior {
-    /// `border << 16 | slot + 1` (`0` in the low half: not stored), or [`EMPTY`].
+    /// Entry `h` for a border `b` with `(b ^ b >> 8) & 0xFF == h`: `tag | stored << 8 |
+    /// (len − 1) << 9 | start << 13`, where `tag = b >> 8` (with `h` it identifies `b`) and
+    /// `start`, `len` are the candidates' [`crate::prior::slot_span`]; or [`EMPTY`].
     cache: [u32; 256],
 }
 
-const EMPTY: u32 = u32::MAX;
+const EMPTY: u32 = 1 << 31;
+const STORED: u32 = 1 << 8;
+// The packing: a 13-bit start from bit 13 ends below the EMPTY bit.
+const _: () = assert!(13 + crate::prior::SPAN_START_BITS <= 31);
 
 impl Default for BorderPrior {
     fn default() -> Self {
@@ -150,21 +155,30 @@ impl PatchPrior for BorderPrior {
 
     #[inline]
     fn table(&mut self, border: u16) -> Option<(&'static [u16], &'static [i16])> {
-        // Fibonacci hashing: the top byte of border × 2^32/φ.
-        let h = (u32::from(border).wrapping_mul(0x9E37_79B9) >> 24) as usize;
-        let e = self.cache.get(h).copied().unwrap_or(EMPTY);
-        let slot = if e != EMPTY && (e >> 16) as u16 == border {
-            (e & 0xFFFF) as u16
-        } else {
+        let tag = u32::from(border >> 8);
+        // The low byte xor a hash of the high byte (the tag): with the tag it gives back the
+        // border, and the rows of open space and walls spread over the entries.
+        let h = (u32::from(border) ^ tag.wrapping_mul(0x9E37_79B9) >> 24) as usize & 0xFF;
+        let mut e = self.cache.get(h).copied().unwrap_or(EMPTY);
+        if e & (EMPTY | 0xFF) != tag {
             // A stored border, or its despeckled image: the back-off's first two steps, which
             // take one border's flash tables whole (the hot path).
-            let s = crate::prior::smooth_slot(border).map_or(0, |(i, _)| i.saturating_add(1));
+            e = match crate::prior::smooth_slot(border)
+                .and_then(|(s, _)| crate::prior::slot_span(s))
+            {
+                Some((start, len)) => {
+                    tag | STORED | u32::from(len - 1) << 9 | u32::from(start) << 13
+                }
+                None => tag,
+            };
             if let Some(c) = self.cache.get_mut(h) {
-                *c = u32::from(border) << 16 | u32::from(s);
+                *c = e;
             }
-            s
-        };
-        crate::prior::slot_tables(slot.checked_sub(1)?)
+        }
+        if e & STORED == 0 {
+            return None;
+        }
+        crate::prior::span_tables((e >> 13) as u16, ((e >> 9 & 15) + 1) as u8)
     }
 }
 

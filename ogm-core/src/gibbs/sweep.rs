@@ -26,6 +26,9 @@ pub(crate) struct Raster {
     y: i32,
     /// Whether the rows describe the segment that holds (x, y).
     valid: bool,
+    /// Whether the rows describe the segment one row above (x, y), the update count having
+    /// just moved past its end to the next row of the tile.
+    next_row: bool,
     /// First centre of the segment.
     x_start: i32,
     /// Centres in the segment.
@@ -62,7 +65,7 @@ where
     {
         debug_assert_eq!(self.config.data, DataTerm::Evidence);
         // The map and the sample may have changed since the last call (a scan, seeding).
-        self.raster.valid = false;
+        (self.raster.valid, self.raster.next_row) = (false, false);
         let mut left = budget;
         while left > 0 {
             if self.visit_left == 0 {
@@ -74,7 +77,7 @@ where
                 self.visit_left = cells * u32::from(self.config.visit_sweeps.max(1)).div_ceil(9);
                 self.raster.x = x0;
                 self.raster.y = y0;
-                self.raster.valid = false;
+                (self.raster.valid, self.raster.next_row) = (false, false);
             }
             if !self.raster.valid {
                 self.raster_load(map);
@@ -94,43 +97,73 @@ where
     }
 
     /// Reads the segment that starts at the current centre: up to [`MAX_SPAN`] centres, to the
-    /// tile's last column.
+    /// tile's last column. Right after the same columns one row up (the next row of a tile no
+    /// wider than a segment) it keeps the four sample rows and two evidence rows it shares with
+    /// them and reads one of each: the rows a segment's updates changed are its locals, kept
+    /// current, and the evidence does not change within a [`Gibbs::step`].
     fn raster_load(&mut self, map: &[LogOdds]) {
         let (x, y) = (self.raster.x, self.raster.y);
         let span = (self.tile.2 - x + 1).clamp(1, MAX_SPAN);
-        let width = usize::from(self.geometry.width());
+        if core::mem::take(&mut self.raster.next_row)
+            && (self.raster.x_start, self.raster.span) == (x, span)
+        {
+            let [_, r1, r2, r3, r4] = self.raster.rows;
+            self.raster.rows = [r1, r2, r3, r4, self.sample_row(x, y + 2, span)];
+            let (k, o) = self.evidence_row(map, x, y + 1, span);
+            let ([_, k1, k2], [_, o1, o2]) = (self.raster.known, self.raster.occupied);
+            (self.raster.known, self.raster.occupied) = ([k1, k2, k], [o1, o2, o]);
+            self.raster.valid = true;
+            return;
+        }
         let mut rows = [0u32; 5];
         for (r, row) in rows.iter_mut().enumerate() {
-            let yy = y - 2 + r as i32;
-            // Patch centres keep a 2-cell margin: the window is in the map.
-            if yy >= 0 && x >= 2 {
-                *row = self.bits(yy as usize * width + (x - 2) as usize, (span + 4) as u32);
-            }
+            *row = self.sample_row(x, y - 2 + r as i32, span);
         }
         self.raster.rows = rows;
         let (mut known, mut occupied) = ([0u32; 3], [0u32; 3]);
         for (r, (k, o)) in known.iter_mut().zip(occupied.iter_mut()).enumerate() {
-            // Columns x − 1 ..= x + span of row y − 1 + r: in the map (the 2-cell margin), so
-            // a slice that is not (only a broken tiling) reads as no evidence.
-            let start = (y - 1 + r as i32) as usize * width + (x - 1) as usize;
-            let Some(cells) = map.get(start..start + span as usize + 2) else {
-                continue;
-            };
-            // One moving bit: a compare and a conditional OR per mask and cell.
-            let mut bit = 1u32;
-            for l in cells {
-                if l.0 != 0 {
-                    *k |= bit;
-                }
-                if l.0 > 0 {
-                    *o |= bit;
-                }
-                bit <<= 1;
-            }
+            (*k, *o) = self.evidence_row(map, x, y - 1 + r as i32, span);
         }
         (self.raster.known, self.raster.occupied) = (known, occupied);
         (self.raster.x_start, self.raster.span) = (x, span);
         self.raster.valid = true;
+    }
+
+    /// The sample bits of row `y`, columns `x − 2 .. x + span + 2` (bit 0 first).
+    #[inline]
+    fn sample_row(&self, x: i32, y: i32, span: i32) -> u32 {
+        let width = usize::from(self.geometry.width());
+        // Patch centres keep a 2-cell margin: the window is in the map.
+        if y >= 0 && x >= 2 {
+            self.bits(y as usize * width + (x - 2) as usize, (span + 4) as u32)
+        } else {
+            0
+        }
+    }
+
+    /// The evidence bits (log-odds ≠ 0, > 0) of row `y`, columns `x − 1 ..= x + span`.
+    #[inline]
+    fn evidence_row(&self, map: &[LogOdds], x: i32, y: i32, span: i32) -> (u32, u32) {
+        let width = usize::from(self.geometry.width());
+        // In the map (the 2-cell margin), so a slice that is not (only a broken tiling) reads as
+        // no evidence.
+        let start = y as usize * width + (x - 1) as usize;
+        let Some(cells) = map.get(start..start + span as usize + 2) else {
+            return (0, 0);
+        };
+        // One moving bit: a compare and a conditional OR per mask and cell.
+        let (mut k, mut o) = (0u32, 0u32);
+        let mut bit = 1u32;
+        for l in cells {
+            if l.0 != 0 {
+                k |= bit;
+            }
+            if l.0 > 0 {
+                o |= bit;
+            }
+            bit <<= 1;
+        }
+        (k, o)
     }
 
     /// Moves `n` centres on in the tile's raster order, within the current segment or just past
@@ -144,6 +177,8 @@ where
             self.raster.x = x0;
             self.raster.y = if y >= y1 { y0 } else { y + 1 };
             self.raster.valid = false;
+            // The next row's segment may share four of these rows (checked by raster_load).
+            self.raster.next_row = y < y1;
             return;
         }
         self.raster.x = x;
