@@ -13,6 +13,7 @@ use super::{Count, DataTerm, Gibbs, LocalRay, PatchPrior};
 use crate::fixed::LogOdds;
 use crate::geometry::CellCoord;
 use crate::ray_store::{RayStore, StoredRay, StoredScan};
+use rand_core::Rng;
 
 /// Where the sweep is, and what it knows about the windows of a run of centres in its row.
 ///
@@ -201,6 +202,8 @@ where
         let mut rows = self.raster.rows;
         let (known_rows, occupied_rows) = (self.raster.known, self.raster.occupied);
         let (x_start, y) = (self.raster.x_start, self.raster.y);
+        // `random_patch_due`'s countdown as a local for the run.
+        let (period, mut gap) = (self.rand_period, self.rand_gap);
         for x in self.raster.x..self.raster.x + n as i32 {
             let centre = CellCoord { x, y };
             // The centre's offset in the segment (0 ≤ s < span ≤ 27).
@@ -224,7 +227,15 @@ where
                 },
                 (known, occupied)
             );
-            let new = if self.random_patch_due() {
+            let due = period != 0 && {
+                // Invariant: the gap is ≥ 1 while random patches are on.
+                gap = gap.saturating_sub(1);
+                gap == 0
+            };
+            if due {
+                gap = 1 + super::below(self.rng.next_u32(), period);
+            }
+            let new = if due {
                 self.random_patch(store, centre, current)
             } else if let Some((configs, log_priors)) = self.prior.table(border) {
                 let masks = (known as u16, occupied as u16);
@@ -247,5 +258,6 @@ where
             }
         }
         self.raster.rows = rows;
+        self.rand_gap = gap;
     }
 }
