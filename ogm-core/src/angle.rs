@@ -20,9 +20,9 @@ pub struct Angle(pub u16);
 pub const Q30_ONE: i32 = 1 << 30;
 
 const SIN_STEPS: usize = 512; // table entries per quarter turn (plus one)
-const SIN_TABLE: [i32; SIN_STEPS + 1] = build_sin_table();
+static SIN_TABLE: [i32; SIN_STEPS + 1] = build_sin_table();
 const ATAN_STEPS: usize = 256;
-const ATAN_TABLE: [u16; ATAN_STEPS + 1] = build_atan_table();
+static ATAN_TABLE: [u16; ATAN_STEPS + 1] = build_atan_table();
 
 /// sin(x) for x ∈ [0, π/2] by its Taylor series (19 terms: error far below 1e-15).
 const fn const_sin(x: f64) -> f64 {

@@ -104,7 +104,7 @@ pub(crate) fn probability_q16(l: crate::LogOdds) -> u32 {
     (a * (128 - f) + b * f + 64) >> 7
 }
 
-const PROB_TABLE: [u32; 129] = build_prob_table();
+static PROB_TABLE: [u32; 129] = build_prob_table();
 
 // Const-evaluated: an out-of-range index fails compilation, not a run.
 #[allow(clippy::indexing_slicing)]

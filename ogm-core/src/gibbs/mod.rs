@@ -508,8 +508,10 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
 }
 
 /// 2^(−i/512) in Q16 for i in 0..512: the weight of a log-odds difference of i LSB (one LSB is
-/// ln 2 / 512, so `exp(−d·LSB) = 2^(−d/512)` exactly).
-const EXP2_TABLE: [u32; 512] = build_exp2_table();
+/// ln 2 / 512, so `exp(−d·LSB) = 2^(−d/512)` exactly). A `static`, like every lookup table in
+/// this crate: a `const` array is copied into each codegen unit that indexes it (this one was in
+/// the firmware twice, 2 KiB of flash).
+static EXP2_TABLE: [u32; 512] = build_exp2_table();
 
 // Const-evaluated: an out-of-range index would fail compilation, not panic at run time.
 #[allow(clippy::indexing_slicing)]

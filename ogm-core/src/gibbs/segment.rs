@@ -24,7 +24,7 @@ pub struct Segment {
 }
 
 /// √(1 + (i/256)²) in Q12 for i = 0 ..= 256.
-const STEP_TABLE: [u16; 257] = build_step_table();
+static STEP_TABLE: [u16; 257] = build_step_table();
 
 // Const-evaluated: an out-of-range index would fail compilation, not panic at run time.
 #[allow(clippy::indexing_slicing)]
