@@ -1,15 +1,15 @@
 //! The product's promise, as a behaviour test: the map the firmware's sampler keeps online (in
-//! QEMU) beats the log-odds map it is built from. The firmware runs 7 000 sampler updates after
-//! each scan — what the default time budget of 6.4 ms of board time buys on this run (7 578 –
-//! 7 638) — as a fixed count: under the time budget the count depends on where the link's
-//! receive interrupts land in a scan's window, which follows the host's load (docs/results.md),
-//! while a fixed count makes max F1 exactly repeatable, so fixed margins can be asserted; this
-//! is not a timing test.
+//! QEMU) beats the log-odds map it is built from. The firmware runs 10 000 sampler updates after
+//! each scan — a little less than what the default time budget of 6.4 ms of board time buys on
+//! this run (10 605 at 510 instructions per patch) — as a fixed count: under the time budget the
+//! count depends on where the link's receive interrupts land in a scan's window, which follows
+//! the host's load (docs/results.md), while a fixed count makes max F1 exactly repeatable, so
+//! fixed margins can be asserted; this is not a timing test.
 //!
 //! Seed 1: 34 scans of the generated 12.8 m building, then half a second of board time standing
 //! still. Figures at the time of writing (`host-sim firmware --seed 1 --accuracy --idle 0.5
-//! --fixed-updates 7000`): log-odds 0.7195; online after the last scan 0.8046, after 0.5 s idle
-//! 0.8278.
+//! --fixed-updates 10000`): log-odds 0.7195; online after the last scan 0.8159, after 0.5 s idle
+//! 0.8331.
 //!
 //! A long mission (1 000 scans taken while driving, the σ = 3-cell simulated lidar) runs the same
 //! firmware application on the host with a fixed number of sampler updates per scan (no QEMU):
@@ -28,7 +28,7 @@ fn online_marginals_beat_the_log_odds_map() {
         seed: 1,
         accuracy: true,
         idle: vec![0.5],
-        fixed_updates: Some(7000),
+        fixed_updates: Some(10_000),
         timeout: 240,
         ..FirmwareArgs::default()
     })
@@ -43,7 +43,7 @@ fn online_marginals_beat_the_log_odds_map() {
         f1("online_idle_0.5s"),
     );
     eprintln!("log-odds {trad:.4}, online {online:.4}, after 0.5 s idle {idle:.4}");
-    assert!(online >= trad + 0.08, "online {online} vs log-odds {trad}");
+    assert!(online >= trad + 0.09, "online {online} vs log-odds {trad}");
     assert!(
         idle >= trad + 0.10,
         "after idling {idle} vs log-odds {trad}"
