@@ -13,9 +13,12 @@
 //!    listener resumes from the first one's capture, sends scans 5–7 and `Finish`, and must
 //!    resynchronise and report exactly scans 2–4 as missed.
 //!
-//! QEMU starts paused (`-S`) with UART1 on `-chardev pty`; the pty's path comes from QMP
-//! (`query-chardev`), and the guest runs (`cont`) once the listener has the pty open, so the
-//! robot's `Hello` is not lost and the host answers within the firmware's 100 ms.
+//! QEMU starts paused (`-S`) with UART1 on a pseudo-terminal the test owns ([`PtyRelay`]: QEMU
+//! opens the slave of one pty pair, the listener the slave of another, and the test copies
+//! between their masters), and the guest runs (`cont`) once the listener has its device open,
+//! so the robot's `Hello` is not lost and the host answers within the firmware's 100 ms. With
+//! QEMU's own `-chardev pty` its exit closed the master, which hung up the listener's device
+//! and dropped what it had not read yet: once, the robot's last frame (`Done`).
 //!
 //! Needs the firmware toolchain and QEMU; skipped with a message without them unless
 //! `OGM_REQUIRE_FIRMWARE=1`. Runtime: a few seconds per part after the firmware build.
@@ -98,16 +101,104 @@ fn split_before_scans(input: &RunInput, at: &[u32]) -> Vec<RunInput> {
     parts
 }
 
-/// QEMU with the firmware, paused, UART1 on a pty.
+/// Two pseudo-terminal pairs and the copying between their masters: QEMU's UART opens slave A,
+/// listeners open slave B ([`PtyRelay::device`]). The test holds both masters and slave A for
+/// the whole test, so neither QEMU exiting nor a listener closing its device hangs up the
+/// other side or drops bytes in flight.
+struct PtyRelay {
+    /// Slave A's path, for QEMU.
+    qemu_side: PathBuf,
+    /// Slave B's path, for listeners.
+    device: PathBuf,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<()>>,
+    _slave_a: serialport::TTYPort,
+}
+
+impl PtyRelay {
+    fn start() -> PtyRelay {
+        use serialport::{SerialPort, TTYPort};
+        let (mut master_a, slave_a) = TTYPort::pair().expect("pty pair A");
+        let (mut master_b, slave_b) = TTYPort::pair().expect("pty pair B");
+        let qemu_side = PathBuf::from(slave_a.name().expect("slave A's name"));
+        let device = PathBuf::from(slave_b.name().expect("slave B's name"));
+        // Listeners open slave B by its path, and close it when they stop.
+        drop(slave_b);
+        for m in [&mut master_a, &mut master_b] {
+            m.set_timeout(Duration::from_millis(20)).unwrap();
+        }
+        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let (a2, b2) = (
+            master_a.try_clone_native().unwrap(),
+            master_b.try_clone_native().unwrap(),
+        );
+        let threads = [(master_a, b2), (master_b, a2)]
+            .into_iter()
+            .map(|(from, to)| {
+                let stop = stop.clone();
+                std::thread::spawn(move || copy_until(from, to, &stop))
+            })
+            .collect();
+        PtyRelay {
+            qemu_side,
+            device,
+            stop,
+            threads,
+            _slave_a: slave_a,
+        }
+    }
+}
+
+impl Drop for PtyRelay {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::SeqCst);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Copies `from` to `to` until `stop`. A master whose slave nobody has open reads as an error
+/// (no listener running): wait and try again.
+fn copy_until(
+    mut from: serialport::TTYPort,
+    mut to: serialport::TTYPort,
+    stop: &std::sync::atomic::AtomicBool,
+) {
+    use std::io::Read;
+    let mut buf = [0u8; 4096];
+    while !stop.load(std::sync::atomic::Ordering::SeqCst) {
+        let n = match from.read(&mut buf) {
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => continue,
+            Err(_) => {
+                std::thread::sleep(Duration::from_millis(5));
+                continue;
+            }
+        };
+        let mut rest = &buf[..n];
+        while !rest.is_empty() && !stop.load(std::sync::atomic::Ordering::SeqCst) {
+            match to.write(rest) {
+                Ok(k) => rest = &rest[k..],
+                Err(_) => std::thread::sleep(Duration::from_millis(5)),
+            }
+        }
+    }
+}
+
+/// QEMU with the firmware, paused, UART1 on slave A of a [`PtyRelay`]; `pty` is slave B.
 struct Qemu {
     child: Child,
     qmp: BufReader<UnixStream>,
     pty: PathBuf,
     log: PathBuf,
+    // Dropped after `child` is stopped (fields drop in order): QEMU's device outlives QEMU.
+    _relay: PtyRelay,
 }
 
 impl Qemu {
     fn start(elf: &Path, dir: &Path) -> Qemu {
+        let relay = PtyRelay::start();
         let sock = dir.join("qmp.sock");
         let log = dir.join("qemu.log");
         let f = std::fs::File::create(&log).unwrap();
@@ -117,7 +208,10 @@ impl Qemu {
             .arg(elf)
             .args(["--timeout", "120", "--uart1", "chardev:u1", "--raw"])
             .arg(dir.join("defmt.raw"))
-            .args(["--", "-chardev", "pty,id=u1", "-S", "-qmp"])
+            .arg("--")
+            .arg("-chardev")
+            .arg(format!("serial,id=u1,path={}", relay.qemu_side.display()))
+            .args(["-S", "-qmp"])
             .arg(format!("unix:{},server=on,wait=off", sock.display()))
             .stdin(Stdio::null())
             .stdout(Stdio::from(f.try_clone().unwrap()))
@@ -145,21 +239,14 @@ impl Qemu {
         let mut q = Qemu {
             child,
             qmp: BufReader::new(stream),
-            pty: PathBuf::new(),
+            pty: relay.device.clone(),
             log,
+            _relay: relay,
         };
         let mut greeting = String::new();
         q.qmp.read_line(&mut greeting).unwrap();
         assert!(greeting.contains("QMP"), "QMP greeting: {greeting}");
         q.execute("qmp_capabilities");
-        let r = q.execute("query-chardev");
-        let pty = r["return"]
-            .as_array()
-            .and_then(|a| a.iter().find(|c| c["label"] == "u1"))
-            .and_then(|c| c["filename"].as_str())
-            .and_then(|f| f.strip_prefix("pty:"))
-            .unwrap_or_else(|| panic!("no pty for u1 in {r}"));
-        q.pty = PathBuf::from(pty);
         q
     }
 
