@@ -31,13 +31,15 @@
 //! what the sampler uses — first backs off to the border **despeckled** ([`despeckle`]: every
 //! ring cell that differs from both its ring neighbours flipped; one lookup, flagged
 //! [`PriorSource::Despeckled`], and found for about three in four unseen borders in simulated
-//! runs), then to the **borders one cell away** (Hamming distance 1): the union of their
+//! runs), then to its **ring majority** ([`ring_majority`]: every ring cell set to the vote of
+//! the five around it; one lookup, [`PriorSource::RingMajority`], found for three in four of the
+//! rest), then to the **borders one cell away** (Hamming distance 1): the union of their
 //! candidates, each configuration with its largest log-prior, flagged [`PriorSource::Nearby`];
 //! only if none of the 16 is in the table does it use the unconditioned prior. The back-off
 //! matters inside large unobserved regions: a random patch (p_randPatch) leaves a border that is
 //! "all occupied but one cell", which is rarely in the table; its despeckled image "all
 //! occupied" says fill it in, where the unconditioned prior (74 % all-free) would carve a hole
-//! that grows. All three rules commute with the 8 rotations/flips. An
+//! that grows. All four rules commute with the 8 rotations/flips. An
 //! unseen 8-neighbour byte for L = 1 falls back to [`occupancy_prior`].
 //!
 //! # Pruning
@@ -55,7 +57,7 @@
 //! lookups of borders that are not stored with one load. No RAM beyond the stack is used.
 
 use crate::fixed::{LogOdds, LSB_NATS};
-use crate::patch::{config_from, despeckle, CONFIG_MASK};
+use crate::patch::{config_from, despeckle, ring_majority, CONFIG_MASK};
 use crate::prior_table as table;
 
 /// Log-prior value meaning probability zero (see the [module docs](self)).
@@ -79,6 +81,9 @@ pub enum PriorSource {
     /// The border was not in the table; these are the candidates of its
     /// [`despeckle`]d image ([`candidates_into`]).
     Despeckled,
+    /// The border and its despeckled image were not in the table; these are the candidates of
+    /// its [`ring_majority`] image ([`candidates_into`]).
+    RingMajority,
     /// The unconditioned prior, asked for directly.
     Unconditioned,
 }
@@ -342,26 +347,34 @@ pub fn candidates(border: u16, k: usize) -> Candidates {
 }
 
 /// The stored border the sampler uses for `border` when it takes one border's candidates whole:
-/// `border` itself if it is stored, else its [`despeckle`]d image if that is (the first two
-/// steps of [`candidates_into`]'s back-off). Its position ([`border_slot`]) and whether it is
-/// the border itself, or `None` if neither is stored.
+/// `border` itself if it is stored, else its [`despeckle`]d image if that is, else its
+/// [`ring_majority`] image if that is (the first three steps of [`candidates_into`]'s
+/// back-off). Its position ([`border_slot`]) and which of the three it is, or `None`.
 #[inline]
 pub fn smooth_slot(border: u16) -> Option<(u16, PriorSource)> {
     if let Some(s) = border_slot(border) {
         return Some((s, PriorSource::Border));
     }
     let d = despeckle(border);
-    if d == border {
-        return None;
+    if d != border {
+        if let Some(s) = border_slot(d) {
+            return Some((s, PriorSource::Despeckled));
+        }
     }
-    border_slot(d).map(|s| (s, PriorSource::Despeckled))
+    let m = ring_majority(border);
+    if m != border && m != d {
+        if let Some(s) = border_slot(m) {
+            return Some((s, PriorSource::RingMajority));
+        }
+    }
+    None
 }
 
 /// The candidates the sampler uses for `border`, most likely first, written into `out` (at most
 /// `out.len()`; never 0 for a non-empty `out`): the stored candidates of the border, or else
-/// those of its [`despeckle`]d image, or else the union of those of the stored borders one cell
-/// away (each configuration with its largest log-prior), or else the unconditioned prior. See
-/// the [module docs](self).
+/// those of its [`despeckle`]d image, or else those of its [`ring_majority`] image, or else the
+/// union of those of the stored borders one cell away (each configuration with its largest
+/// log-prior), or else the unconditioned prior. See the [module docs](self).
 pub fn candidates_into(border: u16, out: &mut [Candidate]) -> (usize, PriorSource) {
     if let Some((slot, source)) = smooth_slot(border) {
         let (configs, log_priors) = slot_tables(slot).unwrap_or((&[], &[]));
@@ -830,7 +843,7 @@ mod tests {
     #[test]
     fn candidates_into_backs_off_to_despeckled_then_nearby_borders_symmetrically() {
         use crate::patch::Dihedral;
-        let mut sources = [0usize; 4];
+        let mut sources = [0usize; 5];
         for border in 0..=u16::MAX {
             let mut out = [Candidate {
                 config: 0,
@@ -845,9 +858,15 @@ mod tests {
                     sources[0] += 1;
                     assert_eq!(got, &candidates(border, 16).iter().collect::<Vec<_>>()[..]);
                 }
-                PriorSource::Despeckled => {
-                    sources[3] += 1;
-                    let d = despeckle(border);
+                PriorSource::Despeckled | PriorSource::RingMajority => {
+                    let d = if src == PriorSource::Despeckled {
+                        sources[3] += 1;
+                        despeckle(border)
+                    } else {
+                        sources[4] += 1;
+                        assert!(!border_seen(despeckle(border)));
+                        ring_majority(border)
+                    };
                     assert!(
                         !border_seen(border) && border_seen(d),
                         "border {border:#06x}"
@@ -876,6 +895,7 @@ mod tests {
                 PriorSource::Nearby => {
                     sources[1] += 1;
                     assert!(!border_seen(border) && !border_seen(despeckle(border)));
+                    assert!(!border_seen(ring_majority(border)));
                     assert_eq!(smooth_slot(border), None);
                     assert!((0..16).any(|b| border_seen(border ^ (1 << b))));
                     // Against a brute-force union: every configuration with its largest
@@ -920,6 +940,7 @@ mod tests {
                 PriorSource::Fallback => {
                     sources[2] += 1;
                     assert!(!border_seen(despeckle(border)));
+                    assert!(!border_seen(ring_majority(border)));
                     assert!((0..16).all(|b| !border_seen(border ^ (1 << b))));
                 }
                 PriorSource::Unconditioned => unreachable!(),
@@ -956,9 +977,10 @@ mod tests {
                         )
                     );
                 }
-                PriorSource::Unconditioned | PriorSource::Nearby | PriorSource::Despeckled => {
-                    unreachable!()
-                }
+                PriorSource::Unconditioned
+                | PriorSource::Nearby
+                | PriorSource::Despeckled
+                | PriorSource::RingMajority => unreachable!(),
             }
             match p.certain() {
                 Some(true) => assert_eq!(p.log_odds(), LogOdds(i16::MAX)),

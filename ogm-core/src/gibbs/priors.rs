@@ -93,15 +93,15 @@ impl PatchPrior for NeighbourPrior {
 
 /// The data-driven L = 9 prior conditioned on the 16-cell border (the paper's "MCMC + border",
 /// the default): [`crate::prior::candidates_into`], with its documented back-off for unseen
-/// borders (the despeckled border, nearby borders, then the unconditioned prior).
+/// borders (the despeckled border, its ring majority, nearby borders, then the unconditioned
+/// prior).
 ///
-/// Keeps a 256-entry direct-mapped cache (1 KiB) of border → candidate slice (of the border or
-/// of its despeckled image, [`crate::prior::smooth_slot`]), because the borders of a map repeat
-/// (straight walls, open space): a hit replaces the table's bucket, binary search and slice
-/// bounds by a load and a compare. The union of nearby borders is not cached: the borders that
-/// need it are diverse (10 825 distinct in 96 104 back-offs of one simulated run, where even
-/// 512 cached results hit 21–23 % of the time), so their lookup is made cheap instead (the
-/// table's bit filter, [`crate::prior`]).
+/// Keeps a 256-entry direct-mapped cache (1 KiB) of border → candidate slice (of the border, of
+/// its despeckled image or of its ring majority, [`crate::prior::smooth_slot`]), because the
+/// borders of a map repeat (straight walls, open space): a hit replaces the table's bucket,
+/// binary search and slice bounds by a load and a compare. The union of nearby borders is not
+/// cached: the borders that still need it are diverse, so their lookup is made cheap instead
+/// (the table's bit filter, [`crate::prior`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BorderPrior {
     /// Entry `h` for a border `b` with `(b ^ b >> 8) & 0xFF == h`: `tag | stored << 8 |
@@ -161,8 +161,8 @@ impl PatchPrior for BorderPrior {
         let h = (u32::from(border) ^ tag.wrapping_mul(0x9E37_79B9) >> 24) as usize & 0xFF;
         let mut e = self.cache.get(h).copied().unwrap_or(EMPTY);
         if e & (EMPTY | 0xFF) != tag {
-            // A stored border, or its despeckled image: the back-off's first two steps, which
-            // take one border's flash tables whole (the hot path).
+            // A stored border, its despeckled image or its ring majority: the back-off's first
+            // three steps, which take one border's flash tables whole (the hot path).
             e = match crate::prior::smooth_slot(border)
                 .and_then(|(s, _)| crate::prior::slot_span(s))
             {
