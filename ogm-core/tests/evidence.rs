@@ -229,6 +229,36 @@ fn raster_sweep_on(w: u16, h: u16) {
     );
 }
 
+#[test]
+fn raster_runs_the_same_chain_however_the_budget_is_split() {
+    // One call of 5 000 updates and the same updates in calls of 1 to 7: segment runs, row
+    // reuse and the bulk sweep count must not depend on where a call ends.
+    let g = GridGeometry::new(45, 38, 50, 0, 0).unwrap();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(12);
+    let map = random_map(&mut rng, g);
+    let (mut a, mut sa) = setup(g, evidence_config(5));
+    let (mut b, mut sb) = setup(g, evidence_config(5));
+    a.reset(&map, &mut sa).unwrap();
+    b.reset(&map, &mut sb).unwrap();
+    a.step(&mut sa, &map, 5000);
+    let mut left = 5000u32;
+    while left > 0 {
+        let n = range::<u32>(&mut rng, 1, 8).min(left);
+        b.step(&mut sb, &map, n);
+        left -= n;
+    }
+    assert_eq!(a.stats(), b.stats());
+    assert!(
+        a.stats().sweeps > 0 && a.stats().changed > 0,
+        "{:?}",
+        a.stats()
+    );
+    for i in 0..g.len() {
+        assert_eq!(a.occupied(i), b.occupied(i), "cell {i}");
+        assert_eq!(a.count(i), b.count(i), "cell {i}");
+    }
+}
+
 /// The `u8` estimate's rule for one cell, in floating point: move `⌊(d + u mod 2^s) / 2^s⌋`
 /// towards the target, `d` the distance, `s = min(shift, 7)`.
 fn byte_rule(m: u8, occupied: bool, shift: u8, u: u8) -> u8 {

@@ -167,7 +167,7 @@ impl PatchPrior for BorderPrior {
                 .and_then(|(s, _)| crate::prior::slot_span(s))
             {
                 Some((start, len)) => {
-                    tag | STORED | u32::from(len - 1) << 9 | u32::from(start) << 13
+                    tag | STORED | u32::from(len.saturating_sub(1)) << 9 | u32::from(start) << 13
                 }
                 None => tag,
             };
