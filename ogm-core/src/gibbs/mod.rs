@@ -1871,12 +1871,12 @@ where
         }
         // As `n` single steps: each wraps at `sweep_len` (≥ 1) and counts a sweep.
         // (`accumulate` stays out of line: inlined in the loop above it cost 2 KiB of flash.)
-        let total = u64::from(self.in_sweep) + u64::from(n);
-        let len = u64::from(self.sweep_len.max(1));
-        let sweeps = u32::try_from(total / len).unwrap_or(u32::MAX);
-        self.stats.sweeps = self.stats.sweeps.saturating_add(sweeps);
-        // < len ≤ u32::MAX.
-        self.in_sweep = (total % len) as u32;
+        // Saturating: only a budget near 2^32 in one call could reach it, and it would only
+        // undercount sweeps (a 32-bit division; a 64-bit one is a library call on the M4).
+        let total = self.in_sweep.saturating_add(n);
+        let len = self.sweep_len.max(1);
+        self.stats.sweeps = self.stats.sweeps.saturating_add(total / len);
+        self.in_sweep = total % len;
     }
 
     #[inline(never)]
