@@ -545,6 +545,23 @@ fn weight_q16(d: u32) -> u32 {
     EXP2_TABLE.get(r).copied().unwrap_or(0) >> q
 }
 
+/// One update's step of the random-patch countdown (`p_randPatch`): random patches come every
+/// `1 + below(period)` updates (`period` 0: never). Whether this update is one; then the next
+/// `gap` is drawn from `rng`. The sampler's and the raster run's (which keeps `gap` in a local).
+#[inline]
+fn random_patch_step(period: u32, gap: &mut u32, rng: &mut Xoshiro128PlusPlus) -> bool {
+    if period == 0 {
+        return false;
+    }
+    // Invariant: the gap is ≥ 1 while random patches are on.
+    *gap = gap.saturating_sub(1);
+    if *gap > 0 {
+        return false;
+    }
+    *gap = 1 + below(rng.next_u32(), period);
+    true
+}
+
 /// Uniform integer in `0..n` from a 32-bit random number (Lemire's multiply-shift).
 #[inline]
 fn below(r: u32, n: u32) -> u32 {
@@ -1290,16 +1307,7 @@ where
     /// Counts down to the next random patch (`p_randPatch`): whether this update is one.
     #[inline]
     fn random_patch_due(&mut self) -> bool {
-        if self.rand_period == 0 {
-            return false;
-        }
-        // Invariant: the gap is ≥ 1 while random patches are on.
-        self.rand_gap = self.rand_gap.saturating_sub(1);
-        if self.rand_gap > 0 {
-            return false;
-        }
-        self.rand_gap = 1 + below(self.rng.next_u32(), self.rand_period);
-        true
+        random_patch_step(self.rand_period, &mut self.rand_gap, &mut self.rng)
     }
 
     /// Sets a uniformly random configuration at `centre` (Algorithm 1's `p_randPatch` move);

@@ -13,7 +13,6 @@ use super::{Count, DataTerm, Gibbs, LocalRay, PatchPrior};
 use crate::fixed::LogOdds;
 use crate::geometry::CellCoord;
 use crate::ray_store::{RayStore, StoredRay, StoredScan};
-use rand_core::Rng;
 
 /// Where the sweep is, and what it knows about the windows of a run of centres in its row.
 ///
@@ -227,15 +226,7 @@ where
                 },
                 (known, occupied)
             );
-            let due = period != 0 && {
-                // Invariant: the gap is ≥ 1 while random patches are on.
-                gap = gap.saturating_sub(1);
-                gap == 0
-            };
-            if due {
-                gap = 1 + super::below(self.rng.next_u32(), period);
-            }
-            let new = if due {
+            let new = if super::random_patch_step(period, &mut gap, &mut self.rng) {
                 self.random_patch(store, centre, current)
             } else if let Some((configs, log_priors)) = self.prior.table(border) {
                 let masks = (known as u16, occupied as u16);
