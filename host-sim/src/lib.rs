@@ -15,6 +15,7 @@ pub mod l25;
 pub mod lidar;
 pub mod link;
 pub mod listen;
+pub mod live;
 pub mod map_export;
 pub mod metrics;
 pub mod noise;

@@ -100,6 +100,11 @@ pub struct ListenArgs {
     /// at every scan, into this MCAP file (replaced; `host_sim::recording`).
     #[arg(long)]
     pub mcap: Option<PathBuf>,
+    /// Also serve a live view for Foxglove Studio (its WebSocket protocol) on this address
+    /// (default 127.0.0.1:8765, localhost only): both maps twice a second while tiles arrive,
+    /// the robot's pose at every scan (`host_sim::live`).
+    #[arg(long, num_args = 0..=1, default_missing_value = crate::live::DEFAULT_ADDR)]
+    pub live: Option<String>,
 }
 
 impl ListenArgs {
@@ -119,9 +124,13 @@ impl ListenArgs {
             quiet: false,
             print_config: false,
             mcap: None,
+            live: None,
         }
     }
 }
+
+/// How often the live view gets the maps while tiles arrive.
+pub const LIVE_PERIOD: Duration = Duration::from_millis(500);
 
 /// Scans `first..=last` were never reported to the listener.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -288,6 +297,11 @@ pub struct Listener {
     dirty: bool,
     /// `--mcap`: the session being recorded.
     recording: Option<crate::recording::Recording>,
+    /// `--live`: the live view's server, whether tiles arrived since it last got the maps, and
+    /// when that was.
+    live: Option<crate::live::LiveServer>,
+    live_dirty: bool,
+    live_sent: Option<Instant>,
 }
 
 impl Default for Listener {
@@ -311,6 +325,54 @@ impl Listener {
             warned_no_hello: false,
             dirty: false,
             recording: None,
+            live: None,
+            live_dirty: false,
+            live_sent: None,
+        }
+    }
+
+    /// Serves the live view on `addr` from now on (`crate::live`); the address it listens on.
+    pub fn serve_live(&mut self, addr: &str) -> anyhow::Result<std::net::SocketAddr> {
+        let server = crate::live::LiveServer::start(addr)?;
+        let a = server.local_addr();
+        self.live = Some(server);
+        self.live_dirty = true;
+        Ok(a)
+    }
+
+    /// The live view's server, if any.
+    pub fn live(&self) -> Option<&crate::live::LiveServer> {
+        self.live.as_ref()
+    }
+
+    /// Sends both maps to the live view if tiles arrived since it last got them, at most every
+    /// [`LIVE_PERIOD`] (a map is a few hundred KiB of JSON; the viewer needs no more).
+    pub fn live_tick(&mut self) {
+        if self.live.is_none()
+            || !self.live_dirty
+            || self.live_sent.is_some_and(|t| t.elapsed() < LIVE_PERIOD)
+        {
+            return;
+        }
+        self.live_dirty = false;
+        self.live_sent = Some(Instant::now());
+        let t = crate::recording::now_ns();
+        for (marginals, cells, (width, height, cell_m, origin_m)) in self.map_layers() {
+            let frame = crate::recording::GridFrame {
+                width,
+                height,
+                cell_m,
+                origin_m,
+                cells: &cells,
+            };
+            let channel = if marginals {
+                crate::recording::Channel::Marginals
+            } else {
+                crate::recording::Channel::LogOdds
+            };
+            if let Some(live) = self.live.as_ref() {
+                live.publish(channel, t, &crate::recording::grid_message(&frame, t));
+            }
         }
     }
 
@@ -330,22 +392,11 @@ impl Listener {
     /// Both layers into the recording, if any. A write error ends the recording with a warning
     /// (the maps on disk are unaffected).
     fn record_maps(&mut self) {
-        let Some(map) = self.map.as_ref() else { return };
-        let (width, height) = (map.width, map.height);
-        let known: Vec<bool> = (0..width * height)
-            .map(|i| map.log_odds.get(i).is_some_and(|&l| l != 0))
-            .collect();
-        let (cell_m, origin_m) = self.geometry();
+        if self.recording.is_none() {
+            return;
+        }
         let t = crate::recording::now_ns();
-        for (marginals, layer) in [(true, MapLayer::Marginals), (false, MapLayer::LogOdds)] {
-            let Some(probs) = self.probabilities(layer) else {
-                continue;
-            };
-            let cells: Vec<Option<f64>> = probs
-                .iter()
-                .zip(&known)
-                .map(|(&p, &k)| k.then_some(p))
-                .collect();
+        for (marginals, cells, (width, height, cell_m, origin_m)) in self.map_layers() {
             let frame = crate::recording::GridFrame {
                 width,
                 height,
@@ -360,6 +411,33 @@ impl Listener {
                 }
             }
         }
+    }
+
+    /// Both layers as the recording and the live view send them: (marginals?, p(occupied) or
+    /// `None` where nothing was observed, (width, height, cell edge m, origin m)).
+    #[allow(clippy::type_complexity)]
+    fn map_layers(&self) -> Vec<(bool, Vec<Option<f64>>, (usize, usize, f64, (f64, f64)))> {
+        let Some(map) = self.map.as_ref() else {
+            return Vec::new();
+        };
+        let (width, height) = (map.width, map.height);
+        let known: Vec<bool> = (0..width * height)
+            .map(|i| map.log_odds.get(i).is_some_and(|&l| l != 0))
+            .collect();
+        let (cell_m, origin_m) = self.geometry();
+        let mut out = Vec::new();
+        for (marginals, layer) in [(true, MapLayer::Marginals), (false, MapLayer::LogOdds)] {
+            let Some(probs) = self.probabilities(layer) else {
+                continue;
+            };
+            let cells: Vec<Option<f64>> = probs
+                .iter()
+                .zip(&known)
+                .map(|(&p, &k)| k.then_some(p))
+                .collect();
+            out.push((marginals, cells, (width, height, cell_m, origin_m)));
+        }
+        out
     }
 
     /// A listener that keeps its capture at `path`: unless `fresh`, an existing capture is
@@ -469,6 +547,7 @@ impl Listener {
             return notices;
         }
         self.dirty = true;
+        self.live_dirty = true;
         // Split at each 0x00 so that every frame's bytes are known (for the garbage count).
         for segment in data.split_inclusive(|&b| b == 0) {
             let before = self.decoder.stats();
@@ -541,14 +620,19 @@ impl Listener {
             }
             DeviceEvent::Scan(r) => {
                 self.stats.scans_seen += 1;
+                let p = r.pose;
+                let heading = f64::from(p.heading) * std::f64::consts::TAU / 65_536.0;
+                let (x, y) = (f64::from(p.x_mm) / 1000.0, f64::from(p.y_mm) / 1000.0);
+                let t = crate::recording::now_ns();
                 if let Some(rec) = self.recording.as_mut() {
-                    let p = r.pose;
-                    let heading = f64::from(p.heading) * std::f64::consts::TAU / 65_536.0;
-                    let (x, y) = (f64::from(p.x_mm) / 1000.0, f64::from(p.y_mm) / 1000.0);
-                    if let Err(e) = rec.pose(x, y, heading, crate::recording::now_ns()) {
+                    if let Err(e) = rec.pose(x, y, heading, t) {
                         notices.push(Notice::Warning(format!("{e:#}; recording stopped")));
                         self.recording = None;
                     }
+                }
+                if let Some(live) = self.live.as_ref() {
+                    let m = crate::recording::pose_message(x, y, heading, t);
+                    live.publish(crate::recording::Channel::Pose, t, &m);
                 }
                 let expected = self.stats.last_seq.map_or(0, |s| s.wrapping_add(1));
                 if r.seq > expected {
@@ -1216,12 +1300,21 @@ pub fn run(args: &ListenArgs, ctl: Arc<Control>) -> anyhow::Result<ListenStats> 
     if let Some(path) = &args.mcap {
         l.record_to(path)?;
     }
+    let live_addr = match &args.live {
+        Some(addr) => Some(l.serve_live(addr)?),
+        None => None,
+    };
     let mut con = Console {
         quiet: args.quiet,
         tty: std::io::stderr().is_terminal(),
         last: Instant::now(),
         shown: false,
     };
+    if let Some(a) = live_addr {
+        con.line(&format!(
+            "live view: ws://{a} (Foxglove Studio: Open connection → Foxglove WebSocket)"
+        ));
+    }
     if l.stats().restarts > 0 {
         con.line(&format!(
             "resumed {}: {} bytes, {} scans seen (last {}); restart {}",
@@ -1344,6 +1437,7 @@ fn read_loop(
             go_sent = true;
             let _ = tx.send(ToSender::Go(false));
         }
+        l.live_tick();
         if args.save_every > 0.0
             && last_save.elapsed().as_secs_f64() >= args.save_every
             && l.dirty()

@@ -60,6 +60,87 @@ pub const LOG_ODDS_TOPIC: &str = "/map/log_odds";
 /// Topic of the robot's pose at each scan.
 pub const POSE_TOPIC: &str = "/robot/pose";
 
+/// One channel of a session: topic, schema name and JSON Schema (messages are JSON). The MCAP
+/// recording and the live view (`crate::live`) offer the same three.
+#[derive(Clone, Copy, Debug)]
+pub struct ChannelSpec {
+    /// Topic.
+    pub topic: &'static str,
+    /// Foxglove schema name.
+    pub schema_name: &'static str,
+    /// JSON Schema of the fields written.
+    pub schema: &'static str,
+}
+
+/// The session's channels, in the order of [`Channel`].
+pub const CHANNELS: [ChannelSpec; 3] = [
+    ChannelSpec {
+        topic: MARGINALS_TOPIC,
+        schema_name: "foxglove.Grid",
+        schema: GRID_SCHEMA,
+    },
+    ChannelSpec {
+        topic: LOG_ODDS_TOPIC,
+        schema_name: "foxglove.Grid",
+        schema: GRID_SCHEMA,
+    },
+    ChannelSpec {
+        topic: POSE_TOPIC,
+        schema_name: "foxglove.PoseInFrame",
+        schema: POSE_SCHEMA,
+    },
+];
+
+/// A channel of [`CHANNELS`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Channel {
+    /// The sampler's marginals.
+    Marginals = 0,
+    /// The log-odds map.
+    LogOdds = 1,
+    /// The robot's pose.
+    Pose = 2,
+}
+
+/// The `foxglove.Grid` message of one map layer at host time `t_ns`.
+pub fn grid_message(g: &GridFrame<'_>, t_ns: u64) -> serde_json::Value {
+    let bytes: Vec<u8> = g
+        .cells
+        .iter()
+        .map(|c| match c {
+            None => -1i8 as u8,
+            Some(p) => (p.clamp(0.0, 1.0) * 100.0).round() as u8,
+        })
+        .collect();
+    json!({
+        "timestamp": stamp(t_ns),
+        "frame_id": "map",
+        "pose": {
+            "position": {"x": g.origin_m.0, "y": g.origin_m.1, "z": 0.0},
+            "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
+        },
+        "column_count": g.width,
+        "cell_size": {"x": g.cell_m, "y": g.cell_m},
+        "row_stride": g.width,
+        "cell_stride": 1,
+        "fields": [{"name": "occupancy", "offset": 0, "type": INT8}],
+        "data": base64::engine::general_purpose::STANDARD.encode(&bytes),
+    })
+}
+
+/// The `foxglove.PoseInFrame` message of the robot's pose (x, y in m, heading in rad) at host
+/// time `t_ns`.
+pub fn pose_message(x_m: f64, y_m: f64, heading: f64, t_ns: u64) -> serde_json::Value {
+    json!({
+        "timestamp": stamp(t_ns),
+        "frame_id": "map",
+        "pose": {
+            "position": {"x": x_m, "y": y_m, "z": 0.0},
+            "orientation": {"x": 0.0, "y": 0.0, "z": (heading / 2.0).sin(), "w": (heading / 2.0).cos()},
+        },
+    })
+}
+
 /// One map layer as the recording needs it.
 pub struct GridFrame<'a> {
     /// Columns, rows.
@@ -95,13 +176,21 @@ impl Recording {
             .profile("")
             .create(BufWriter::new(file))
             .with_context(|| format!("{}: cannot start an MCAP file", path.display()))?;
-        let grid = writer.add_schema("foxglove.Grid", "jsonschema", GRID_SCHEMA.as_bytes())?;
-        let pose =
-            writer.add_schema("foxglove.PoseInFrame", "jsonschema", POSE_SCHEMA.as_bytes())?;
         let none = BTreeMap::new();
-        let marginals = writer.add_channel(grid, MARGINALS_TOPIC, "json", &none)?;
-        let log_odds = writer.add_channel(grid, LOG_ODDS_TOPIC, "json", &none)?;
-        let pose = writer.add_channel(pose, POSE_TOPIC, "json", &none)?;
+        let mut ids = [0u16; 3];
+        let mut schemas = BTreeMap::new();
+        for (id, c) in ids.iter_mut().zip(CHANNELS) {
+            let schema = match schemas.get(c.schema_name) {
+                Some(&s) => s,
+                None => {
+                    let s = writer.add_schema(c.schema_name, "jsonschema", c.schema.as_bytes())?;
+                    schemas.insert(c.schema_name, s);
+                    s
+                }
+            };
+            *id = writer.add_channel(schema, c.topic, "json", &none)?;
+        }
+        let [marginals, log_odds, pose] = ids;
         Ok(Recording {
             writer,
             path: path.to_path_buf(),
@@ -138,48 +227,18 @@ impl Recording {
 
     /// The map of one layer (`marginals`: the sampler's, else the log-odds) at host time `t_ns`.
     pub fn grid(&mut self, marginals: bool, g: &GridFrame<'_>, t_ns: u64) -> anyhow::Result<()> {
-        let bytes: Vec<u8> = g
-            .cells
-            .iter()
-            .map(|c| match c {
-                None => -1i8 as u8,
-                Some(p) => (p.clamp(0.0, 1.0) * 100.0).round() as u8,
-            })
-            .collect();
-        let value = json!({
-            "timestamp": stamp(t_ns),
-            "frame_id": "map",
-            "pose": {
-                "position": {"x": g.origin_m.0, "y": g.origin_m.1, "z": 0.0},
-                "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
-            },
-            "column_count": g.width,
-            "cell_size": {"x": g.cell_m, "y": g.cell_m},
-            "row_stride": g.width,
-            "cell_stride": 1,
-            "fields": [{"name": "occupancy", "offset": 0, "type": INT8}],
-            "data": base64::engine::general_purpose::STANDARD.encode(&bytes),
-        });
         let channel = if marginals {
             self.marginals
         } else {
             self.log_odds
         };
-        self.write(channel, t_ns, &value)
+        self.write(channel, t_ns, &grid_message(g, t_ns))
     }
 
     /// The robot's pose (x, y in m, heading in rad) at host time `t_ns`.
     pub fn pose(&mut self, x_m: f64, y_m: f64, heading: f64, t_ns: u64) -> anyhow::Result<()> {
-        let value = json!({
-            "timestamp": stamp(t_ns),
-            "frame_id": "map",
-            "pose": {
-                "position": {"x": x_m, "y": y_m, "z": 0.0},
-                "orientation": {"x": 0.0, "y": 0.0, "z": (heading / 2.0).sin(), "w": (heading / 2.0).cos()},
-            },
-        });
         let channel = self.pose;
-        self.write(channel, t_ns, &value)
+        self.write(channel, t_ns, &pose_message(x_m, y_m, heading, t_ns))
     }
 
     /// Writes the summary and index and closes the file (nothing is lost before this: a file
