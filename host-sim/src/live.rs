@@ -7,9 +7,10 @@
 //!
 //! Binds to localhost unless given another address. A client's bytes are untrusted: its text
 //! messages are parsed as JSON and anything but `subscribe` / `unsubscribe` with valid ids is
-//! ignored; messages over [`MAX_CLIENT_MESSAGE`] bytes end its connection. A slow client never
-//! blocks the listener: each client has its own thread and a bounded queue, and a client whose
-//! queue is full misses messages (counted) instead.
+//! ignored; messages over [`MAX_CLIENT_MESSAGE`] bytes end its connection, and at most
+//! [`MAX_CLIENTS`] are served at once. A slow client never blocks the listener: each client has
+//! its own thread and a bounded queue, and a client whose queue is full misses messages
+//! (counted) instead.
 //!
 //! Protocol (what this server uses of it): on connect the server sends `serverInfo` and
 //! `advertise` (text, JSON); the client sends `subscribe` `{"op":"subscribe","subscriptions":
@@ -41,6 +42,10 @@ pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
 pub const MAX_CLIENT_MESSAGE: usize = 64 * 1024;
 /// Messages queued per client before it misses some.
 const QUEUE: usize = 64;
+/// Viewers served at once; more connections are closed right away.
+pub const MAX_CLIENTS: usize = 16;
+/// How long a client may take to send its WebSocket handshake.
+const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
 /// Binary opcode of a message.
 const OP_MESSAGE_DATA: u8 = 0x01;
 
@@ -158,6 +163,11 @@ fn accept_loop(listener: &TcpListener, shared: &Arc<Shared>) {
     while !shared.stop.load(Ordering::SeqCst) {
         match listener.accept() {
             Ok((stream, _)) => {
+                clients.retain(|c| !c.is_finished());
+                if clients.len() >= MAX_CLIENTS {
+                    // Dropping the stream closes it.
+                    continue;
+                }
                 shared.connections.fetch_add(1, Ordering::SeqCst);
                 let (tx, rx) = sync_channel(QUEUE);
                 lock(&shared.clients).push(tx);
@@ -183,7 +193,7 @@ fn accept_loop(listener: &TcpListener, shared: &Arc<Shared>) {
 /// subscriptions and the messages published on them until it leaves or the server stops.
 fn serve(stream: TcpStream, rx: Receiver<Arc<Published>>, shared: &Shared) -> anyhow::Result<()> {
     stream.set_nonblocking(false)?;
-    stream.set_read_timeout(Some(Duration::from_millis(20)))?;
+    stream.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
     stream.set_write_timeout(Some(Duration::from_secs(5)))?;
     let config = tungstenite::protocol::WebSocketConfig::default()
         .max_message_size(Some(MAX_CLIENT_MESSAGE))
@@ -206,6 +216,9 @@ fn serve(stream: TcpStream, rx: Receiver<Arc<Published>>, shared: &Shared) -> an
     };
     let mut ws = tungstenite::accept_hdr_with_config(stream, offer, Some(config))
         .map_err(|e| anyhow::anyhow!("handshake: {e}"))?;
+    // From now on reads only poll: the loop also forwards what is published.
+    ws.get_ref()
+        .set_read_timeout(Some(Duration::from_millis(20)))?;
     ws.send(Message::text(server_info().to_string()))?;
     ws.send(Message::text(advertise().to_string()))?;
     // Subscription id → channel; the last message sent on it (publication order).
