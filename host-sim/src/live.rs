@@ -455,6 +455,42 @@ mod tests {
     }
 
     #[test]
+    fn viewers_beyond_the_limit_are_turned_away() {
+        let server = LiveServer::start("127.0.0.1:0").unwrap();
+        let mut kept: Vec<_> = (0..MAX_CLIENTS)
+            .map(|_| connect(server.local_addr()))
+            .collect();
+        for ws in &mut kept {
+            assert_eq!(text(ws)["op"], "serverInfo");
+        }
+        let mut req = format!("ws://{}", server.local_addr())
+            .into_client_request()
+            .unwrap();
+        req.headers_mut()
+            .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
+        assert!(tungstenite::connect(req).is_err(), "one viewer too many");
+        assert_eq!(server.connections(), MAX_CLIENTS as u64);
+        // One leaves: a new one is served again.
+        kept.pop().unwrap().close(None).unwrap();
+        let t0 = std::time::Instant::now();
+        loop {
+            let mut req = format!("ws://{}", server.local_addr())
+                .into_client_request()
+                .unwrap();
+            req.headers_mut()
+                .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
+            if tungstenite::connect(req).is_ok() {
+                break;
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(10),
+                "no room after a viewer left"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    #[test]
     fn client_requests_are_parsed_defensively() {
         let mut subs = BTreeMap::new();
         for bad in [
