@@ -129,6 +129,30 @@ impl ListenArgs {
     }
 }
 
+/// One map layer, owned, for the recording and the live view ([`Listener::map_layers`]).
+struct LayerCells {
+    /// The sampler's marginals (else the log-odds).
+    marginals: bool,
+    /// p(occupied), or `None` where nothing was observed; row-major, row 0 at the bottom.
+    cells: Vec<Option<f64>>,
+    width: usize,
+    height: usize,
+    cell_m: f64,
+    origin_m: (f64, f64),
+}
+
+impl LayerCells {
+    fn frame(&self) -> crate::recording::GridFrame<'_> {
+        crate::recording::GridFrame {
+            width: self.width,
+            height: self.height,
+            cell_m: self.cell_m,
+            origin_m: self.origin_m,
+            cells: &self.cells,
+        }
+    }
+}
+
 /// How often the live view gets the maps while tiles arrive.
 pub const LIVE_PERIOD: Duration = Duration::from_millis(500);
 
@@ -357,21 +381,18 @@ impl Listener {
         self.live_dirty = false;
         self.live_sent = Some(Instant::now());
         let t = crate::recording::now_ns();
-        for (marginals, cells, (width, height, cell_m, origin_m)) in self.map_layers() {
-            let frame = crate::recording::GridFrame {
-                width,
-                height,
-                cell_m,
-                origin_m,
-                cells: &cells,
-            };
-            let channel = if marginals {
+        for layer in self.map_layers() {
+            let channel = if layer.marginals {
                 crate::recording::Channel::Marginals
             } else {
                 crate::recording::Channel::LogOdds
             };
             if let Some(live) = self.live.as_ref() {
-                live.publish(channel, t, &crate::recording::grid_message(&frame, t));
+                live.publish(
+                    channel,
+                    t,
+                    &crate::recording::grid_message(&layer.frame(), t),
+                );
             }
         }
     }
@@ -396,16 +417,9 @@ impl Listener {
             return;
         }
         let t = crate::recording::now_ns();
-        for (marginals, cells, (width, height, cell_m, origin_m)) in self.map_layers() {
-            let frame = crate::recording::GridFrame {
-                width,
-                height,
-                cell_m,
-                origin_m,
-                cells: &cells,
-            };
+        for layer in self.map_layers() {
             if let Some(r) = self.recording.as_mut() {
-                if let Err(e) = r.grid(marginals, &frame, t) {
+                if let Err(e) = r.grid(layer.marginals, &layer.frame(), t) {
                     eprintln!("warning: {e:#}; recording stopped");
                     self.recording = None;
                 }
@@ -413,10 +427,8 @@ impl Listener {
         }
     }
 
-    /// Both layers as the recording and the live view send them: (marginals?, p(occupied) or
-    /// `None` where nothing was observed, (width, height, cell edge m, origin m)).
-    #[allow(clippy::type_complexity)]
-    fn map_layers(&self) -> Vec<(bool, Vec<Option<f64>>, (usize, usize, f64, (f64, f64)))> {
+    /// Both layers as the recording and the live view send them.
+    fn map_layers(&self) -> Vec<LayerCells> {
         let Some(map) = self.map.as_ref() else {
             return Vec::new();
         };
@@ -435,7 +447,14 @@ impl Listener {
                 .zip(&known)
                 .map(|(&p, &k)| k.then_some(p))
                 .collect();
-            out.push((marginals, cells, (width, height, cell_m, origin_m)));
+            out.push(LayerCells {
+                marginals,
+                cells,
+                width,
+                height,
+                cell_m,
+                origin_m,
+            });
         }
         out
     }
