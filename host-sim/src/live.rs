@@ -349,11 +349,16 @@ mod tests {
     use crate::recording::{grid_message, pose_message, GridFrame};
     use tungstenite::client::IntoClientRequest;
 
-    fn connect(addr: SocketAddr) -> WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>> {
+    /// A Foxglove client's handshake request to `addr`.
+    fn request(addr: SocketAddr) -> tungstenite::handshake::client::Request {
         let mut req = format!("ws://{addr}").into_client_request().unwrap();
         req.headers_mut()
             .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
-        let (ws, resp) = tungstenite::connect(req).unwrap();
+        req
+    }
+
+    fn connect(addr: SocketAddr) -> WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>> {
+        let (ws, resp) = tungstenite::connect(request(addr)).unwrap();
         assert_eq!(
             resp.headers()
                 .get("Sec-WebSocket-Protocol")
@@ -463,23 +468,16 @@ mod tests {
         for ws in &mut kept {
             assert_eq!(text(ws)["op"], "serverInfo");
         }
-        let mut req = format!("ws://{}", server.local_addr())
-            .into_client_request()
-            .unwrap();
-        req.headers_mut()
-            .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
-        assert!(tungstenite::connect(req).is_err(), "one viewer too many");
+        assert!(
+            tungstenite::connect(request(server.local_addr())).is_err(),
+            "one viewer too many"
+        );
         assert_eq!(server.connections(), MAX_CLIENTS as u64);
         // One leaves: a new one is served again.
         kept.pop().unwrap().close(None).unwrap();
         let t0 = std::time::Instant::now();
         loop {
-            let mut req = format!("ws://{}", server.local_addr())
-                .into_client_request()
-                .unwrap();
-            req.headers_mut()
-                .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
-            if tungstenite::connect(req).is_ok() {
+            if tungstenite::connect(request(server.local_addr())).is_ok() {
                 break;
             }
             assert!(

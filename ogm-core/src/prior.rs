@@ -840,6 +840,30 @@ mod tests {
         }
     }
 
+    /// `candidates_into` of `border` transformed by `t` gives `got` (from `border`, source
+    /// `src`) transformed: the same source, count and (configuration, log-prior) set.
+    fn assert_transformed_alike(
+        border: u16,
+        got: &[Candidate],
+        src: PriorSource,
+        t: crate::patch::Dihedral,
+    ) {
+        let mut out = [Candidate {
+            config: 0,
+            log_prior: 0,
+        }; 16];
+        let (n, s) = candidates_into(t.border(border), &mut out);
+        assert_eq!((n, s), (got.len(), src), "border {border:#06x}");
+        let mut a: Vec<(u16, i16)> = got
+            .iter()
+            .map(|c| (t.config(c.config), c.log_prior))
+            .collect();
+        let mut b: Vec<(u16, i16)> = out[..n].iter().map(|c| (c.config, c.log_prior)).collect();
+        a.sort();
+        b.sort();
+        assert_eq!(a, b, "border {border:#06x}");
+    }
+
     #[test]
     fn candidates_into_backs_off_to_despeckled_then_nearby_borders_symmetrically() {
         use crate::patch::Dihedral;
@@ -875,21 +899,7 @@ mod tests {
                     assert_eq!(smooth_slot(border), Some((border_slot(d).unwrap(), src)));
                     // The same image after any rotation/flip.
                     for t in Dihedral::ALL {
-                        let mut o2 = [Candidate {
-                            config: 0,
-                            log_prior: 0,
-                        }; 16];
-                        let (n2, s2) = candidates_into(t.border(border), &mut o2);
-                        assert_eq!((n2, s2), (n, src));
-                        let mut a: Vec<(u16, i16)> = got
-                            .iter()
-                            .map(|c| (t.config(c.config), c.log_prior))
-                            .collect();
-                        let mut b: Vec<(u16, i16)> =
-                            o2[..n2].iter().map(|c| (c.config, c.log_prior)).collect();
-                        a.sort();
-                        b.sort();
-                        assert_eq!(a, b, "border {border:#06x}");
+                        assert_transformed_alike(border, got, src, t);
                     }
                 }
                 PriorSource::Nearby => {
@@ -919,22 +929,7 @@ mod tests {
                         .all(|c| union.get(&c.config) == Some(&c.log_prior)));
                     if n < 16 {
                         // Untruncated: the union is the same set after any rotation/flip.
-                        let t = Dihedral::ALL[3];
-                        let mut o2 = [Candidate {
-                            config: 0,
-                            log_prior: 0,
-                        }; 16];
-                        let (n2, s2) = candidates_into(t.border(border), &mut o2);
-                        assert_eq!((n2, s2), (n, PriorSource::Nearby));
-                        let mut a: Vec<(u16, i16)> = got
-                            .iter()
-                            .map(|c| (t.config(c.config), c.log_prior))
-                            .collect();
-                        let mut b: Vec<(u16, i16)> =
-                            o2[..n2].iter().map(|c| (c.config, c.log_prior)).collect();
-                        a.sort();
-                        b.sort();
-                        assert_eq!(a, b, "border {border:#06x}");
+                        assert_transformed_alike(border, got, src, Dihedral::ALL[3]);
                     }
                 }
                 PriorSource::Fallback => {
