@@ -254,11 +254,7 @@ fn border_index(border: u16) -> Option<usize> {
 
 /// The stored candidates of `border`, all of them, or `None` if the border is not in the table.
 pub fn border_candidates(border: u16) -> Option<Candidates> {
-    let i = border_index(border)?;
-    let s = usize::from(*table::CAND_START.get(i)?);
-    let e = usize::from(*table::CAND_START.get(i + 1)?);
-    let configs = table::CAND_CONFIG.get(s..e)?;
-    let log_priors = table::CAND_LOG_PRIOR.get(s..e)?;
+    let (configs, log_priors) = slot_tables(border_slot(border)?)?;
     if configs.is_empty() {
         return None;
     }

@@ -104,7 +104,8 @@ impl PatchPrior for NeighbourPrior {
 /// (the table's bit filter, [`crate::prior`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BorderPrior {
-    /// Entry `h` for a border `b` with `(b ^ b >> 8) & 0xFF == h`: `tag | stored << 8 |
+    /// Entry `h` for a border `b` with `(b ^ (b >> 8) · 0x9E37_79B9 >> 24) & 0xFF == h`
+    /// ([`PatchPrior::table`]'s hash): `tag | stored << 8 |
     /// (len − 1) << 9 | start << 13`, where `tag = b >> 8` (with `h` it identifies `b`) and
     /// `start`, `len` are the candidates' [`crate::prior::slot_span`]; or [`EMPTY`].
     cache: [u32; 256],
