@@ -17,6 +17,8 @@
 # FIRMWARE_BOARD=nrf52840 makes build/size/clippy work on the nRF52840-DK binary instead of the
 # default mps2-an386 (QEMU) one, in its own target dir (firmware/target/nrf52840), so the QEMU
 # ELF is never overwritten. `run`/`qemu` are mps2-an386 only.
+# FIRMWARE_FEATURES=rplidar (comma-separated optional features) builds the image with them, in a
+# target dir of its own (e.g. firmware/target/features-rplidar), for the same reason.
 #
 # RUN_OPTS:
 #   --timeout SECS   kill QEMU after SECS (default $FIRMWARE_QEMU_TIMEOUT or 60); exit 124 then
@@ -41,6 +43,13 @@ mps2-an386) TARGET_DIR="$FW/target" BOARD_ARGS=() ;;
 nrf52840) TARGET_DIR="$FW/target/nrf52840" BOARD_ARGS=(--no-default-features --features nrf52840) ;;
 *) printf '[firmware] ERROR: unknown FIRMWARE_BOARD %s (mps2-an386 or nrf52840)\n' "$BOARD" >&2; exit 1 ;;
 esac
+if [ -n "${FIRMWARE_FEATURES:-}" ]; then
+    case "$FIRMWARE_FEATURES" in
+    *[!a-z0-9,-]*) printf '[firmware] ERROR: bad FIRMWARE_FEATURES %s\n' "$FIRMWARE_FEATURES" >&2; exit 1 ;;
+    esac
+    TARGET_DIR="$TARGET_DIR/features-${FIRMWARE_FEATURES//,/-}"
+    BOARD_ARGS+=(--features "$FIRMWARE_FEATURES")
+fi
 ELF="$TARGET_DIR/$TARGET/release/ogm-firmware"
 
 say() { printf '[firmware] %s\n' "$*" >&2; }

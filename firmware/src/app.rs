@@ -1,8 +1,9 @@
 //! The application: board-independent. It sees the board only through `embedded_io` traits and
 //! [`Platform`], its memory only through [`Memory`].
 //!
-//! Main loop ([`run`]): bytes from the lidar's UART → [`Ld06Parser`] → [`Turns`] (packets
-//! placed by the timestamped poses from the link, motion-compensated turns), and bytes from the
+//! Main loop ([`run`]): bytes from the lidar's UART → [`Ld06Parser`] or [`RplidarParser`], as
+//! the settings say ([`RunConfig::lidar`]) → [`Turns`] (packets or nodes placed by the
+//! timestamped poses from the link, motion-compensated turns), and bytes from the
 //! link → [`LinkRx`] (settings, poses, and scans a host tunnels with their own pose) → for each
 //! scan or turn: [`Session::insert`] (log-odds update, seeding of newly
 //! observed cells into the sampler, rays into the store when the data term reads them) →
@@ -19,16 +20,18 @@ use crate::sizes::APP as SIZES;
 use embedded_io::{Read, ReadReady, Write};
 use ogm_core::ld06::Ld06Parser;
 use ogm_core::link::{LinkRx, Step};
+#[cfg(feature = "rplidar")]
+use ogm_core::rplidar::{self, RplidarParser};
 use ogm_core::session::{Buffers, Session, Sizes, Storage};
 use ogm_core::turn::{Turn, Turns};
 use ogm_core::wire::{
     self, Budget, ConfigFault, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello,
-    IdleReport, Layer, LidarCounters, LinkCounters, PoseInput, RunConfig, ScanReport, Tile,
-    TileRect,
+    IdleReport, Layer, LidarCounters, LidarModel, LinkCounters, PoseInput, RunConfig, ScanReport,
+    Tile, TileRect,
 };
 use ogm_core::{Pose, ScanBuf};
 
-use crate::platform::{Platform, Work};
+use crate::platform::{LidarPort, Platform, Work};
 use crate::selftest;
 
 /// Beams per scan buffer.
@@ -112,18 +115,57 @@ pub struct App<'a, S: Storage> {
 
 /// The lidar on the robot's own UART.
 struct Lidar<'a> {
-    parser: Ld06Parser,
+    parser: Parser,
     turns: &'a mut Turns,
     turn: &'a mut ScanBuf<MAX_BEAMS>,
     bad_packets: u32,
     before_config: u32,
+    /// Settings the UART has not been set up for yet ([`App::take_lidar_setup`]).
+    setup: Option<LidarModel>,
+}
+
+/// The parser of the lidar the settings name (an LD06's until they arrive).
+#[cfg_attr(not(feature = "rplidar"), allow(dead_code))] // `Rplidar` holds no value then
+enum Parser {
+    Ld06(Ld06Parser),
+    Rplidar(RplidarSlot),
+}
+
+/// An RPLIDAR parser in an image built with the `rplidar` feature; without it, a type with no
+/// values, so the compiler drops the RPLIDAR code (its settings are refused:
+/// [`ConfigFault::Lidar`]).
+#[cfg(feature = "rplidar")]
+type RplidarSlot = RplidarParser;
+#[cfg(not(feature = "rplidar"))]
+type RplidarSlot = core::convert::Infallible;
+
+/// Whether this image can read `model`.
+const fn built_for(model: &LidarModel) -> bool {
+    match model {
+        LidarModel::Ld06 => true,
+        LidarModel::Rplidar { .. } => cfg!(feature = "rplidar"),
+    }
+}
+
+/// What a lidar parser handed out.
+enum Unit {
+    Packet(ogm_core::ld06::Packet),
+    #[cfg(feature = "rplidar")]
+    Node(rplidar::Node),
 }
 
 impl Lidar<'_> {
-    /// Starts over with the settings' mounting and pose source.
+    /// Starts over with the settings' lidar, mounting and pose source.
     fn configure(&mut self, config: &RunConfig) {
         *self.turns = Turns::configured(config);
         self.turn.clear();
+        self.parser = match config.lidar {
+            #[cfg(feature = "rplidar")]
+            LidarModel::Rplidar { .. } => Parser::Rplidar(RplidarParser::new()),
+            // Refused before this (`built_for`) when the image has no RPLIDAR parser.
+            _ => Parser::Ld06(Ld06Parser::new()),
+        };
+        self.setup = Some(config.lidar);
     }
 
     fn counters(&self) -> LidarCounters {
@@ -182,11 +224,12 @@ impl<'a, S: Storage> App<'a, S> {
             rx: LinkRx::new(),
             scan: memory.scan,
             lidar: Lidar {
-                parser: Ld06Parser::new(),
+                parser: Parser::Ld06(Ld06Parser::new()),
                 turns: memory.turns,
                 turn: memory.turn,
                 bad_packets: 0,
                 before_config: 0,
+                setup: None,
             },
             state: State {
                 session: None,
@@ -240,15 +283,33 @@ impl<'a, S: Storage> App<'a, S> {
         self.state.session.is_some() && self.lidar.turns.wants_packets()
     }
 
+    /// How many link bytes the main loop may read at once (at most `chunk`): all of them while
+    /// the pose track has room for every pose they can hold, else one, so that
+    /// [`App::wants_link`] is asked again before each pose that could push out one the lidar
+    /// still needs.
+    pub fn link_read_len(&self, chunk: usize) -> usize {
+        if self.lidar.turns.pose_room() > chunk / wire::MIN_POSE_FRAME + 1 {
+            chunk
+        } else {
+            1
+        }
+    }
+
     /// Whether the link may be read: a pose from it would not push out one the lidar's packets
     /// still need (see [`Turns::wants_poses`]).
     pub fn wants_link(&self) -> bool {
         self.lidar.turns.wants_poses()
     }
 
-    /// Feeds bytes from the lidar's UART: packets are placed by the poses from the link, and
-    /// each finished turn is mapped, sampled, reported and streamed like a host's scan.
-    /// Returns the last turn completed, if any.
+    /// The lidar the settings just named, once: the main loop sets its UART's baud rate and
+    /// starts it ([`start_lidar`]).
+    pub fn take_lidar_setup(&mut self) -> Option<LidarModel> {
+        self.lidar.setup.take()
+    }
+
+    /// Feeds bytes from the lidar's UART: packets or nodes are placed by the poses from the
+    /// link, and each finished turn is mapped, sampled, reported and streamed like a host's
+    /// scan. Returns the last turn completed, if any.
     pub fn feed_lidar<W: Write, P: Platform>(
         &mut self,
         bytes: &[u8],
@@ -256,26 +317,50 @@ impl<'a, S: Storage> App<'a, S> {
         platform: &mut P,
     ) -> Fed {
         let mut fed = Fed::Nothing;
+        let (state, lidar) = (&mut self.state, &mut self.lidar);
+        let mut done = None;
         for &b in bytes {
-            let packet = match self.lidar.parser.push(b) {
-                None => continue,
-                Some(Err(_)) => {
-                    self.lidar.bad_packets = self.lidar.bad_packets.saturating_add(1);
-                    continue;
+            let Lidar {
+                parser,
+                turns,
+                turn,
+                bad_packets,
+                before_config,
+                ..
+            } = &mut *lidar;
+            // One copy of the mapping path, whichever parser calls it (flash).
+            let unit: &mut dyn FnMut(Result<Unit, ()>) = &mut |u| {
+                let u = match u {
+                    Ok(u) => u,
+                    Err(()) => return *bad_packets = bad_packets.saturating_add(1),
+                };
+                if state.session.is_none() {
+                    return *before_config = before_config.saturating_add(1);
                 }
-                Some(Ok(p)) => p,
+                let mut f = |t: Turn<'_>| done = Some(state.process_turn(link, platform, &t));
+                match u {
+                    Unit::Packet(p) => turns.push_packet(&p, turn, &mut f),
+                    #[cfg(feature = "rplidar")]
+                    Unit::Node(n) => turns.push_node(&n, turn, &mut f),
+                }
             };
-            if self.state.session.is_none() {
-                self.lidar.before_config = self.lidar.before_config.saturating_add(1);
-                continue;
+            match parser {
+                Parser::Ld06(p) => match p.push(b) {
+                    None => {}
+                    Some(r) => unit(r.map(Unit::Packet).map_err(drop)),
+                },
+                #[cfg(feature = "rplidar")]
+                Parser::Rplidar(p) => p.push(b, |e| match e {
+                    Ok(rplidar::Event::Node(n)) => unit(Ok(Unit::Node(n))),
+                    Ok(_) => {} // descriptors and responses: nothing to map
+                    Err(_) => unit(Err(())),
+                }),
+                #[cfg(not(feature = "rplidar"))]
+                Parser::Rplidar(never) => match *never {},
             }
-            let mut done = None;
-            let (state, lidar) = (&mut self.state, &mut self.lidar);
-            lidar.turns.push_packet(&packet, lidar.turn, |turn| {
-                done = Some(state.process_turn(link, platform, &turn));
-            });
-            if let Some(seq) = done {
-                self.report(link);
+            if let Some(seq) = done.take() {
+                let (l, d) = (self.rx.counters(), lidar.counters());
+                state.report(link, l, d);
                 fed = Fed::Scan(seq);
             }
         }
@@ -387,6 +472,11 @@ impl<S: Storage> State<'_, S> {
             self.report_error(link, ErrorCode::BadConfig, detail);
             return false;
         }
+        if !(config.lidar.is_valid() && built_for(&config.lidar)) {
+            let detail = ConfigFault::Lidar.detail();
+            self.report_error(link, ErrorCode::BadConfig, detail);
+            return false;
+        }
         let Some(slot) = self.slot.take() else {
             let detail = ConfigFault::NoRoom.detail();
             self.report_error(link, ErrorCode::BadConfig, detail);
@@ -394,7 +484,12 @@ impl<S: Storage> State<'_, S> {
         };
         match build(slot, config, bufs) {
             Ok(m) => {
-                info!("config: {}", config);
+                // The fields a log reader needs (the whole settings' formatter is ~0.7 KiB of
+                // flash; the host has them anyway, echoed in `Configured`).
+                info!(
+                    "config: {=u32} mm cells, seed {=u64}, {}, {}",
+                    config.cell_mm, config.seed, config.lidar, config.budget
+                );
                 self.session = Some(m);
                 // Building the sampler is the deepest the stack ever gets (copies of its 2 KiB
                 // forward-model tables); note it, then measure the mapping loop on its own.
@@ -404,7 +499,8 @@ impl<S: Storage> State<'_, S> {
                 true
             }
             Err(e) => {
-                error!("config rejected: {}", e);
+                // The part, not the whole error (its formatter is ~0.2 KiB of flash).
+                error!("config rejected: {}", e.fault());
                 self.report_error(link, ErrorCode::BadConfig, e.fault().detail());
                 false
             }
@@ -877,7 +973,7 @@ const LIDAR_SILENT_US: u64 = 200_000;
 pub fn run<L, R, S, P>(memory: Memory<'_, S>, link: &mut L, lidar: &mut R, platform: &mut P) -> i32
 where
     L: Read + ReadReady + Write,
-    R: Read + ReadReady,
+    R: LidarPort,
     S: Storage,
     P: Platform,
 {
@@ -910,7 +1006,8 @@ where
         }
         let link_open = app.wants_link() || platform.now().wrapping_sub(heard) > silent;
         if link_open && link.read_ready().unwrap_or(false) {
-            let n = match link.read(&mut chunk) {
+            let len = app.link_read_len(chunk.len());
+            let n = match link.read(chunk.get_mut(..len).unwrap_or(&mut [])) {
                 Ok(n) => n,
                 Err(_) => {
                     app.uart_error(link);
@@ -920,6 +1017,27 @@ where
             if let Fed::Finished(code) = app.feed(chunk.get(..n).unwrap_or(&[]), link, platform) {
                 return code;
             }
+        }
+        if let Some(model) = app.take_lidar_setup() {
+            start_lidar(lidar, platform, model);
+        }
+    }
+}
+
+/// Sets the lidar's UART to `model`'s baud rate and starts the sensor: an RPLIDAR gets `STOP`
+/// (in case it still streams from before a reset), then after the 1 ms the protocol asks for,
+/// `SCAN`; an LD06 streams on its own. A failed write is logged: the run goes on, and its
+/// counters show no turns.
+fn start_lidar<R: LidarPort, P: Platform>(lidar: &mut R, platform: &P, model: LidarModel) {
+    lidar.set_baud(model.baud());
+    if cfg!(feature = "rplidar") && matches!(model, LidarModel::Rplidar { .. }) {
+        let ok = lidar.write_all(&ogm_core::rplidar::REQ_STOP).is_ok() && lidar.flush().is_ok();
+        // ≥ 1 ms after STOP (2 ms: the byte may still be on the wire when `flush` returns).
+        let t0 = platform.now();
+        let wait = (2_000 * u64::from(P::TICK_HZ) / 1_000_000) as u32;
+        while platform.now().wrapping_sub(t0) < wait {}
+        if !(ok && lidar.write_all(&ogm_core::rplidar::REQ_SCAN).is_ok() && lidar.flush().is_ok()) {
+            error!("lidar: cannot send the RPLIDAR its requests");
         }
     }
 }

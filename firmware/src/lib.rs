@@ -24,4 +24,4 @@ pub mod selftest;
 pub mod sizes;
 
 pub use app::{App, Fed, Memory};
-pub use platform::{Platform, StackUsage, Work};
+pub use platform::{LidarPort, Platform, StackUsage, Work};

@@ -53,3 +53,12 @@ pub trait Platform {
         ticks * u64::from(1_000_000_000 / Self::TICK_HZ.max(1))
     }
 }
+
+/// The range sensor's UART as the application uses it: bytes in, requests out (an RPLIDAR is
+/// commanded), and the baud rate the settings' lidar talks at
+/// ([`ogm_core::wire::LidarModel::baud`]).
+pub trait LidarPort: embedded_io::Read + embedded_io::ReadReady + embedded_io::Write {
+    /// Switches the UART to `baud` (bytes received before it may be garbled: the parsers
+    /// resynchronise).
+    fn set_baud(&mut self, baud: u32);
+}

@@ -20,7 +20,9 @@ use ogm_core::link::{LinkRx, Step};
 use ogm_core::pose_track::Mount;
 use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::turn::{Turn, Turns};
-use ogm_core::wire::{self, Budget, HostMsg, PoseInput, RunConfig, WirePose, MAX_HOST_FRAME};
+use ogm_core::wire::{
+    self, Budget, HostMsg, LidarModel, PoseInput, RunConfig, WirePose, MAX_HOST_FRAME,
+};
 use ogm_core::ScanBuf;
 
 const W: u16 = 64;
@@ -57,6 +59,8 @@ enum Item {
         mount_y_mm: i32,
         mount_yaw: u16,
         fixed_poses: bool,
+        /// `Some`: an RPLIDAR with this sample period (0 is refused), else an LD06.
+        rplidar_sample_us: Option<u16>,
     },
     PaperConfig {
         origin_x_mm: i16,
@@ -161,6 +165,7 @@ fuzz_target!(|items: Vec<Item>| {
                 mount_y_mm,
                 mount_yaw,
                 fixed_poses,
+                rplidar_sample_us,
             } => frame(
                 &mut bytes,
                 &HostMsg::Config(RunConfig {
@@ -211,6 +216,10 @@ fuzz_target!(|items: Vec<Item>| {
                         PoseInput::Fixed
                     } else {
                         PoseInput::Link
+                    },
+                    lidar: match rplidar_sample_us {
+                        Some(sample_us) => LidarModel::Rplidar { sample_us },
+                        None => LidarModel::Ld06,
                     },
                 }),
             ),

@@ -104,6 +104,15 @@ pub struct FirmwareArgs {
     /// every turn's pose against the simulator's truth.
     #[arg(long)]
     pub robot: bool,
+    /// With `--robot`: the lidar on the robot's UART, `ld06` or `rplidar` (an RPLIDAR A1:
+    /// the firmware is built with its `rplidar` feature and sends the sensor `SCAN`).
+    #[arg(long, value_enum, default_value_t = LidarArg::Ld06)]
+    pub lidar: LidarArg,
+    /// With `--robot`: how the simulated lidar turns, `ld06` (10 Hz, 456 points) or `a1`
+    /// (5.6 Hz, 360 points 1° apart); default: the lidar's own. The same pattern sent as
+    /// LD06 packets or as RPLIDAR nodes carries the same beams at the same times.
+    #[arg(long, value_enum)]
+    pub pattern: Option<PatternArg>,
     /// A long mission: the robot (scanning while it drives) keeps exploring, then patrolling,
     /// until it has taken this many scans.
     #[arg(long)]
@@ -142,6 +151,43 @@ pub struct FirmwareArgs {
     /// The sampler's settings (default: the robot's, `RunConfig::robot`).
     #[command(flatten)]
     pub sampler: SamplerArgs,
+}
+
+/// `--lidar`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum LidarArg {
+    /// LDROBOT LD06.
+    #[default]
+    Ld06,
+    /// Slamtec RPLIDAR A1, standard scan (2 000 samples/s).
+    Rplidar,
+}
+
+impl LidarArg {
+    /// The settings' lidar.
+    pub fn model(self) -> ogm_core::wire::LidarModel {
+        match self {
+            LidarArg::Ld06 => ogm_core::wire::LidarModel::Ld06,
+            LidarArg::Rplidar => ogm_core::wire::LidarModel::Rplidar { sample_us: 500 },
+        }
+    }
+
+    /// The firmware features the image needs.
+    pub fn features(self) -> Option<&'static str> {
+        match self {
+            LidarArg::Ld06 => None,
+            LidarArg::Rplidar => Some("rplidar"),
+        }
+    }
+}
+
+/// `--pattern`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum PatternArg {
+    /// 10 Hz, 456 points ([`crate::robot::ScanPattern::LD06`]).
+    Ld06,
+    /// 5.6 Hz, 360 points ([`crate::robot::ScanPattern::A1`]).
+    A1,
 }
 
 /// Sampler settings sent to the robot (each defaults to `RunConfig::robot`'s).
@@ -259,6 +305,8 @@ impl Default for FirmwareArgs {
             timeout: 300,
             moving: false,
             robot: false,
+            lidar: LidarArg::Ld06,
+            pattern: None,
             mission_scans: None,
             idle: Vec::new(),
             sampler: SamplerArgs::default(),
@@ -999,10 +1047,19 @@ pub fn toolchain_missing() -> Option<String> {
 
 /// Builds the firmware with `scripts/firmware.sh build`; returns the ELF.
 pub fn build_elf(log: &Path) -> anyhow::Result<PathBuf> {
+    build_elf_with(log, None)
+}
+
+/// [`build_elf`] with optional firmware `features` (comma-separated; their own target dir).
+pub fn build_elf_with(log: &Path, features: Option<&str>) -> anyhow::Result<PathBuf> {
     let root = repo_root();
     let log_file =
         std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
-    let out = Command::new("bash")
+    let mut cmd = Command::new("bash");
+    if let Some(f) = features {
+        cmd.env("FIRMWARE_FEATURES", f);
+    }
+    let out = cmd
         .arg(root.join("scripts/firmware.sh"))
         .arg("build")
         .stdin(Stdio::null())
@@ -1505,6 +1562,10 @@ fn idle_periods_us(secs: &[f64]) -> anyhow::Result<Vec<u32>> {
 
 /// Runs `host-sim firmware` (see the module docs).
 pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
+    ensure!(
+        args.robot || (args.lidar == LidarArg::Ld06 && args.pattern.is_none()),
+        "--lidar and --pattern describe the lidar on the robot's own UART: add --robot"
+    );
     if args.robot {
         return run_robot(args);
     }
@@ -1705,12 +1766,19 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
             y_mm: 0,
             heading: 0,
         },
+        lidar: args.lidar.model(),
         ..run_config(&world, args, sim.mapper_config.max_range_mm)
+    };
+    let pattern = match args.pattern {
+        None => crate::robot::ScanPattern::of(&config.lidar),
+        Some(PatternArg::Ld06) => crate::robot::ScanPattern::LD06,
+        Some(PatternArg::A1) => crate::robot::ScanPattern::A1,
     };
     let input = crate::robot::robot_input(
         &world,
         &poses,
         &config,
+        pattern,
         sim_cfg.lidar.sigma_cells,
         crate::robot::POSE_PERIOD_US,
         args.seed,
@@ -1738,7 +1806,7 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     }
     let elf = match &args.elf {
         Some(e) => e.clone(),
-        None => build_elf(&qemu_dir.join("host-sim-build.log"))?,
+        None => build_elf_with(&qemu_dir.join("host-sim-build.log"), args.lidar.features())?,
     };
     let log = (!args.verbose).then(|| qemu_dir.join("host-sim-firmware.log"));
     let line = LidarLine {
@@ -2141,6 +2209,14 @@ pub fn cli(args: &FirmwareArgs) -> anyhow::Result<()> {
             g.errors,
             g.done
         );
+        // The latest counters (the final ones, else the last scan's): what a cut-off run saw.
+        let last = g.final_counters.or_else(|| {
+            let seq = g.scans.keys().max()?;
+            g.scans.get(seq)?.counters
+        });
+        if let Some(c) = last {
+            println!("counters: {c:?}");
+        }
         ensure!(
             g.done.is_some(),
             "{}: truncated map stream: {} frames but no Done message",

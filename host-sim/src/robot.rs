@@ -1,15 +1,21 @@
 //! The robot loop in simulation: what a real robot's two serial lines carry.
 //!
-//! * **Lidar UART**: LD06 packets only, as the sensor sends them while the robot drives —
-//!   10 turns a second, 38 packets of 12 points a turn (456 points, 0.79° apart: the LD06's
-//!   4 500 points/s), each packet stamped with the
-//!   sensor's millisecond clock and measured from where the sensor *is at that packet's time*
-//!   (the simulator's trajectory, moved by the lidar's mounting), with the simulator's range
-//!   noise.
+//! * **Lidar UART**: what the sensor sends while the robot drives, turn after turn, each point
+//!   measured from where the sensor *is at its batch's time* (the simulator's trajectory, moved
+//!   by the lidar's mounting), with the simulator's range noise:
+//!   * LD06 ([`ScanPattern::LD06`]): 10 turns a second, 38 packets of 12 points a turn (456
+//!     points, 0.79° apart: the LD06's 4 500 points/s), each packet stamped with the sensor's
+//!     millisecond clock;
+//!   * RPLIDAR A1 ([`ScanPattern::A1`]): the `SCAN` response descriptor, then 5-byte nodes,
+//!     360 a turn 1° apart at 2 000 samples/s (5.6 turns a second), the first of each turn
+//!     flagged `S`. The robot times them by their count (`LidarModel::Rplidar`).
+//!
+//!   The same pattern in either format carries the same beams at the same times, which is how
+//!   a test shows the two lidars map alike.
 //! * **Link**: the settings, then the robot's pose at its own rate (odometry at 25 Hz,
 //!   stamped in the lidar's clock), and `Finish` once the device has reported the last turn.
 //!
-//! The trajectory passes through the simulated mission's scan poses, one every 100 ms, in
+//! The trajectory passes through the simulated mission's scan poses, one per turn, in
 //! straight lines ([`Trajectory`]); the device must place every turn at the interpolated pose,
 //! which [`pose_errors`] checks against the truth.
 
@@ -17,7 +23,8 @@ use std::ops::Range;
 
 use anyhow::ensure;
 use ogm_core::ld06::{self, Packet, Point, POINTS};
-use ogm_core::wire::{HostMsg, RunConfig, ScanReport, WirePose};
+use ogm_core::rplidar::{self, Node};
+use ogm_core::wire::{HostMsg, LidarModel, RunConfig, ScanReport, WirePose};
 use ogm_core::{Angle, Pose};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
@@ -27,12 +34,49 @@ use crate::lidar::cast_ray;
 use crate::link::host_frame;
 use crate::world::World;
 
-/// Turn period, µs (LD06: 10 Hz).
+/// Turn period of the LD06, µs (10 Hz).
 pub const TURN_US: u64 = 100_000;
-/// Packets per turn (12 points each: 456 points, `ogm_firmware::sizes::MPS2_AN386.max_beams`).
+/// LD06 packets per turn (12 points each: 456, `ogm_firmware::sizes::MPS2_AN386.max_beams`).
 pub const PACKETS_PER_TURN: u64 = 38;
 /// Default pose period, µs (25 Hz odometry: not a multiple of the packet period).
 pub const POSE_PERIOD_US: u64 = 40_000;
+
+/// How a simulated lidar turns: its period and its points, taken in batches of 12 (an LD06
+/// packet; for an RPLIDAR, 12 consecutive nodes measured from one pose).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ScanPattern {
+    /// Turn period, µs.
+    pub turn_us: u64,
+    /// Batches of 12 points per turn.
+    pub batches: u64,
+}
+
+impl ScanPattern {
+    /// The LD06: 100 ms, 456 points.
+    pub const LD06: ScanPattern = ScanPattern {
+        turn_us: TURN_US,
+        batches: PACKETS_PER_TURN,
+    };
+    /// The RPLIDAR A1 in standard scan mode: 360 points 1° apart at 2 000 samples/s (500 µs
+    /// apart, `LidarModel::Rplidar { sample_us: 500 }`): 180 ms a turn.
+    pub const A1: ScanPattern = ScanPattern {
+        turn_us: 180_000,
+        batches: 30,
+    };
+
+    /// Points per turn.
+    pub const fn points(&self) -> u64 {
+        self.batches * POINTS as u64
+    }
+
+    /// The sensor's own pattern.
+    pub fn of(lidar: &LidarModel) -> ScanPattern {
+        match lidar {
+            LidarModel::Rplidar { .. } => ScanPattern::A1,
+            _ => ScanPattern::LD06,
+        }
+    }
+}
 
 /// The robot's true path: straight lines between poses at known times.
 #[derive(Clone, Debug)]
@@ -134,48 +178,74 @@ pub enum Line {
     Lidar,
 }
 
-/// The lidar bytes and pose messages of a robot driving through `poses` (one every 100 ms) in
-/// `world`, with `config`'s mounting and range, the simulator's range noise `sigma_cells`,
-/// poses every `pose_period_us`.
+/// The lidar bytes and pose messages of a robot driving through `poses` (one per turn of
+/// `pattern`) in `world`, with `config`'s lidar, mounting and range, the simulator's range noise
+/// `sigma_cells`, poses every `pose_period_us`.
 pub fn robot_input(
     world: &World,
     poses: &[Pose],
     config: &RunConfig,
+    pattern: ScanPattern,
     sigma_cells: f64,
     pose_period_us: u64,
     seed: u64,
 ) -> anyhow::Result<RobotInput> {
     ensure!(poses.len() >= 2, "a robot run needs at least two poses");
     ensure!(pose_period_us > 0, "the pose period must be positive");
-    let trajectory = Trajectory::through(poses, TURN_US);
+    ensure!(
+        pattern.batches > 0 && pattern.turn_us % 1000 == 0,
+        "a scan pattern needs batches and a turn of whole milliseconds"
+    );
+    // Batches start on whole milliseconds (the LD06's clock).
+    let turn_ms = pattern.turn_us / 1000;
+    if let LidarModel::Rplidar { sample_us } = config.lidar {
+        ensure!(
+            turn_ms % pattern.batches == 0
+                && u64::from(sample_us) * pattern.points() == pattern.turn_us,
+            "the RPLIDAR's sample period ({sample_us} µs) must be the pattern's point period \
+             ({} µs), in batches of whole ms: the robot times nodes by their count",
+            pattern.turn_us as f64 / pattern.points() as f64
+        );
+    }
+    let trajectory = Trajectory::through(poses, pattern.turn_us);
     let turns = (poses.len() - 1) as u64;
     let res_mm = world.resolution_m * 1000.0;
     let (ox, oy) = (world.origin_m.0 * 1000.0, world.origin_m.1 * 1000.0);
     let max_cells = f64::from(config.max_range_mm) / res_mm;
+    let max_mm = match config.lidar {
+        LidarModel::Rplidar { .. } => rplidar::MAX_RANGE_MM,
+        _ => u32::from(u16::MAX) - 1,
+    };
     ensure!(
-        config.max_range_mm < u32::from(u16::MAX),
-        "the LD06 reports ranges below 65.5 m"
+        config.max_range_mm <= max_mm,
+        "the lidar reports ranges up to {max_mm} mm, below the settings' maximum range"
     );
     let noise = Normal::new(0.0, sigma_cells.max(0.0))?;
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let mut lidar = Vec::new();
-    // (time µs, line, bytes) of every packet and pose, merged into `schedule` below.
+    if let LidarModel::Rplidar { .. } = config.lidar {
+        // The answer to the `SCAN` the robot sends once configured.
+        lidar.extend_from_slice(&rplidar::SCAN_DESCRIPTOR);
+    }
+    // (time µs, line, bytes) of every batch and pose, merged into `schedule` below.
     let mut timed: Vec<(u64, Line, Range<usize>)> = Vec::new();
-    // Every packet of `turns` turns, and the first of the next (it closes the last).
-    for k in 0..=turns * PACKETS_PER_TURN {
-        let (turn, j) = (k / PACKETS_PER_TURN, k % PACKETS_PER_TURN);
-        let t_ms = turn * TURN_US / 1000 + j * TURN_US / 1000 / PACKETS_PER_TURN;
-        // The packet's first and last point: 1/38 of a turn per packet, 1/456 per point.
-        let start = (j * 36_000 / PACKETS_PER_TURN) as u16;
-        let end = ((j * 36_000 + 33_000) / PACKETS_PER_TURN) as u16;
+    // Every batch of `turns` turns, and the first of the next (it closes the last).
+    let per_turn = pattern.batches;
+    for k in 0..=turns * per_turn {
+        let (turn, j) = (k / per_turn, k % per_turn);
+        let t_ms = turn * turn_ms + j * turn_ms / per_turn;
+        let t_us = t_ms * 1000;
+        // The batch's first and last point: 1/batches of a turn per batch, 1/points per point.
+        let start = (j * 36_000 / per_turn) as u16;
+        let end = ((j * 36_000 + 33_000) / per_turn) as u16;
         let mut packet = Packet {
-            speed_dps: 3600,
+            speed_dps: (360_000_000 / pattern.turn_us) as u16,
             start_cdeg: start,
             end_cdeg: end,
             timestamp_ms: (t_ms % 30_000) as u16,
             points: [Point::default(); POINTS],
         };
-        let (sx, sy, sh) = trajectory.sensor_at(&config.mount, t_ms * 1000);
+        let (sx, sy, sh) = trajectory.sensor_at(&config.mount, t_us);
         for i in 0..POINTS {
             // Along the angle the device will give the point.
             let dir = sh + ld06::beam_angle(packet.angle_cdeg(i)).to_radians();
@@ -192,19 +262,28 @@ pub fn robot_input(
                         } else {
                             mm.max(1.0) as u16
                         },
-                        intensity: 200,
+                        intensity: ld06::HIT_INTENSITY,
                     }
                 }
             };
         }
         let at = lidar.len();
-        lidar.extend_from_slice(&packet.to_bytes());
-        timed.push((t_ms * 1000, Line::Lidar, at..lidar.len()));
+        match config.lidar {
+            LidarModel::Rplidar { .. } => {
+                for i in 0..POINTS {
+                    let Some(beam) = packet.beam(i) else { continue };
+                    let node = Node::from_beam(&beam, j == 0 && i == 0);
+                    lidar.extend_from_slice(&node.to_bytes());
+                }
+            }
+            _ => lidar.extend_from_slice(&packet.to_bytes()),
+        }
+        timed.push((t_us, Line::Lidar, at..lidar.len()));
     }
     let mut link = host_frame(&HostMsg::Config(*config));
     let mut schedule = vec![(Line::Link, 0..link.len())];
-    // Poses from 0 until one at or after the last packet's time.
-    let last_packet_us = turns * TURN_US;
+    // Poses from 0 until one at or after the last batch's time.
+    let last_packet_us = turns * pattern.turn_us;
     let mut t = 0;
     let mut sent = 0;
     loop {

@@ -115,8 +115,10 @@ impl Angle {
 
     /// From hundredths of a degree (the LD06 wire unit), wrapped to one turn. Exact to 1/2 unit.
     pub fn from_centidegrees(cdeg: u32) -> Angle {
-        let cdeg = u64::from(cdeg % 36_000);
-        Angle(((cdeg * u64::from(FULL_TURN) + 18_000) / 36_000) as u16)
+        // 35 999 × 65 536 + 18 000 < 2³²: 32-bit arithmetic (one UDIV on a Cortex-M4, not a
+        // 64-bit division call).
+        let cdeg = cdeg % 36_000;
+        Angle(((cdeg * FULL_TURN + 18_000) / 36_000) as u16)
     }
 
     /// In radians, in [0, 2π).

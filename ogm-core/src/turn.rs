@@ -1,45 +1,53 @@
 //! Lidar turns from the robot's own UART, placed by poses that arrive on their own.
 //!
 //! A spinning lidar measures while the robot moves: an LD06 sends a 12-point packet every
-//! ~2.2 ms, one turn in 100 ms, each packet stamped with the sensor's millisecond clock.
-//! [`Turns`] takes those packets and the robot's timestamped poses (odometry or a localiser,
-//! [`crate::wire::HostMsg::Pose`], at their own rate) and hands out whole turns as ordinary
-//! scans: one pose, beams relative to it.
+//! ~2.2 ms, one turn in 100 ms, each packet stamped with the sensor's millisecond clock; an
+//! RPLIDAR A1 sends one 5-byte node every ~0.5 ms with no time at all.
+//! [`Turns`] takes either (as [`Batch`]es of up to 12 points with one time) and the robot's
+//! timestamped poses (odometry or a localiser, [`crate::wire::HostMsg::Pose`], at their own
+//! rate) and hands out whole turns as ordinary scans: one pose, beams relative to it.
 //!
-//! * **Time.** The LD06 timestamp (ms, wrapping at 30 000) is unwrapped from the first packet
-//!   read into the *lidar clock*, µs; poses are stamped in that clock (every
-//!   [`crate::wire::ScanReport::t_us`] tells a host where it stands).
-//! * **Placement.** A packet waits in a queue until a pose at or after its time has arrived,
+//! * **Time.** The *lidar clock*, µs, is what poses are stamped in (every
+//!   [`crate::wire::ScanReport::t_us`] tells a host where it stands). LD06: its timestamp (ms,
+//!   wrapping at 30 000) unwrapped from the first packet read ([`Turns::push_packet`]).
+//!   RPLIDAR: the count of nodes taken × the sample period ([`Turns::push_node`]), from 0 at
+//!   the first node.
+//! * **Placement.** A batch waits in a queue until a pose at or after its time has arrived,
 //!   then gets the robot pose interpolated at its time ([`PoseTrack::at`]) moved to the
-//!   sensor by the [`Mount`]. A packet older than every pose kept is dropped and counted.
-//! * **Turns.** A packet whose start angle is smaller than the previous one's begins a new
-//!   turn; the finished turn goes out. The new turn's *reference pose* is its first packet's
-//!   sensor pose.
+//!   sensor by the [`Mount`]. A batch older than every pose kept is dropped and counted.
+//! * **Turns.** LD06: a packet whose start angle is smaller than the previous one's begins a
+//!   new turn. RPLIDAR: the node with the protocol's start flag `S` does (it also closes the
+//!   batch before it, so a batch never spans two turns). The finished turn goes out. The new
+//!   turn's *reference pose* is its first batch's sensor pose.
 //! * **Motion compensation.** Every point is moved into the reference frame ([`deskew`]): its
 //!   endpoint stays exactly where it was measured, and its ray is cast from the reference
 //!   origin (at most one turn's travel from the true one: 4 cm at 0.4 m/s, under a 5 cm cell).
-//!   Packets taken at the reference pose itself (a robot standing still) pass unchanged, so a
-//!   standing robot maps exactly what the same scan tunnelled by a host maps.
+//!   Batches taken at the reference pose itself (a robot standing still) pass unchanged, so a
+//!   standing robot maps exactly what the same scan tunnelled by a host maps. The same beams
+//!   at the same times give the same turns whichever lidar sent them.
 //!
-//! **Determinism.** What a turn contains and where it is placed depends only on the packet
+//! **Determinism.** What a turn contains and where it is placed depends only on the lidar
 //! bytes and the poses, not on how the two streams interleave, as long as the queue never
-//! overflows and no pose a waiting packet needs is forgotten: [`Turns::wants_packets`] and
+//! overflows and no pose a waiting batch needs is forgotten: [`Turns::wants_packets`] and
 //! [`Turns::wants_poses`] tell the reader when to hold a stream back (the firmware stops
 //! reading that UART). The host replays the same bytes in any order and gets the same map.
 //!
-//! Fixed memory: [`QUEUE`] packets (~3.6 KiB) and [`POSES`] poses.
+//! Fixed memory: [`QUEUE`] batches (~4 KiB) and [`POSES`] poses.
 
 use crate::angle::Angle;
 use crate::geometry::Pose;
 use crate::hal::{Beam, Range, ScanBuf};
-use crate::ld06::{Packet, POINTS};
+use crate::ld06::Packet;
 use crate::pose_track::{Mount, PoseTrack, TrackError};
-use crate::wire::{PoseInput, RunConfig};
+use crate::rplidar::Node;
+use crate::wire::{LidarModel, PoseInput, RunConfig};
 
-/// Packets that can wait for their pose (~140 ms of LD06 data).
+/// Batches that can wait for their pose (~140 ms of LD06 data).
 pub const QUEUE: usize = 64;
 /// Poses kept for interpolation.
 pub const POSES: usize = 32;
+/// Points per [`Batch`]: an LD06 packet's.
+pub const BATCH: usize = crate::ld06::POINTS;
 /// The LD06 timestamp wraps here, ms.
 const WRAP_MS: u64 = 30_000;
 
@@ -47,13 +55,13 @@ const WRAP_MS: u64 = 30_000;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct TurnCounters {
-    /// Packets taken in.
+    /// Batches taken in (LD06 packets, or runs of up to [`BATCH`] RPLIDAR nodes).
     pub packets: u32,
     /// Turns handed out.
     pub turns: u32,
-    /// Packets dropped: older than every pose kept.
+    /// Batches dropped: older than every pose kept.
     pub packets_without_pose: u32,
-    /// Packets dropped: the queue was full (the reader did not hold the lidar back).
+    /// Batches dropped: the queue was full (the reader did not hold the lidar back).
     pub packets_overflowed: u32,
     /// Poses accepted.
     pub poses: u32,
@@ -61,14 +69,15 @@ pub struct TurnCounters {
     pub poses_out_of_order: u32,
 }
 
-/// A finished turn, handed to the callback of [`Turns::push_pose`] / [`Turns::push_packet`].
+/// A finished turn, handed to the callback of [`Turns::push_pose`] / [`Turns::push_packet`] /
+/// [`Turns::push_node`].
 #[derive(Debug, PartialEq, Eq)]
 pub struct Turn<'s> {
     /// Turn number (from 0).
     pub seq: u32,
-    /// The sensor's pose at the turn's first packet: what the beams are relative to.
+    /// The sensor's pose at the turn's first batch: what the beams are relative to.
     pub pose: Pose,
-    /// The first packet's time, µs of the lidar clock.
+    /// The first batch's time, µs of the lidar clock.
     pub t_us: u64,
     /// The beams, motion-compensated into `pose`'s frame.
     pub beams: &'s [Beam],
@@ -76,21 +85,89 @@ pub struct Turn<'s> {
     pub overflow: u32,
 }
 
-#[derive(Clone, Copy, Debug)]
-struct Queued {
+/// How a batch tells where a turn begins.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Mark {
+    /// RPLIDAR: the batch begins with the start-flagged node. (First: `Flag(false)` is all
+    /// zeros, so an empty [`Turns`] is too and its `static` stays in `.bss`, not in flash.)
+    Flag(bool),
+    /// LD06: the packet's start angle (centidegrees); a new turn when it is smaller than the
+    /// previous placed packet's.
+    Start(u16),
+}
+
+/// One measurement in the queue: the beam angle and the range in mm (0: no return).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Sample {
+    angle: Angle,
+    mm: u16,
+}
+
+/// Points taken together and placed by one pose: an LD06 packet, or up to [`BATCH`]
+/// consecutive RPLIDAR nodes of one turn.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Batch {
+    /// When its first point was taken, µs of the lidar clock.
     t_us: u64,
-    packet: Packet,
+    mark: Mark,
+    len: u8,
+    samples: [Sample; BATCH],
+}
+
+impl Batch {
+    const EMPTY: Batch = Batch {
+        t_us: 0,
+        mark: Mark::Flag(false),
+        len: 0,
+        samples: [Sample {
+            angle: Angle(0),
+            mm: 0,
+        }; BATCH],
+    };
+
+    fn of_packet(packet: &Packet, t_us: u64) -> Batch {
+        let mut b = Batch {
+            t_us,
+            mark: Mark::Start(packet.start_cdeg),
+            len: BATCH as u8,
+            ..Batch::EMPTY
+        };
+        for (i, (s, p)) in b.samples.iter_mut().zip(&packet.points).enumerate() {
+            *s = Sample {
+                angle: crate::ld06::beam_angle(packet.angle_cdeg(i)),
+                mm: p.distance_mm,
+            };
+        }
+        b
+    }
+
+    fn beams(&self) -> impl Iterator<Item = Beam> + '_ {
+        self.samples
+            .iter()
+            .take(usize::from(self.len))
+            .map(|s| Beam {
+                angle: s.angle,
+                range: match s.mm {
+                    0 => Range::NoReturn,
+                    mm => Range::Hit(u32::from(mm)),
+                },
+            })
+    }
 }
 
 /// Assembles turns; see the [module docs](self).
 #[derive(Clone, Debug)]
 pub struct Turns {
-    queue: heapless::Deque<Queued, QUEUE>,
+    queue: heapless::Deque<Batch, QUEUE>,
     track: PoseTrack<POSES>,
     mount: Mount,
     fixed: bool,
-    /// Last raw timestamp and the unwrapped time, ms.
+    /// LD06: last raw timestamp and the unwrapped time, ms.
     clock: Option<(u16, u64)>,
+    /// RPLIDAR: nodes taken, the sample period (µs), and the batch being filled.
+    nodes: u64,
+    sample_us: u32,
+    filling: Batch,
     /// Time of the last packet placed.
     placed_us: Option<u64>,
     /// Start angle of the last packet placed.
@@ -111,6 +188,9 @@ impl Turns {
             mount,
             fixed,
             clock: None,
+            nodes: 0,
+            sample_us: 0,
+            filling: Batch::EMPTY,
             placed_us: None,
             last_start: None,
             open: None,
@@ -126,10 +206,14 @@ impl Turns {
         }
     }
 
-    /// Nothing received, the lidar mounted and its poses sourced as `config` says
-    /// ([`RunConfig::mount`], [`RunConfig::poses`]).
+    /// Nothing received, the lidar mounted, its poses sourced and its nodes timed as `config`
+    /// says ([`RunConfig::mount`], [`RunConfig::poses`], [`RunConfig::lidar`]).
     pub fn configured(config: &RunConfig) -> Self {
-        Turns::new(config.lidar_mount(), config.poses == PoseInput::Fixed)
+        let mut t = Turns::new(config.lidar_mount(), config.poses == PoseInput::Fixed);
+        if let LidarModel::Rplidar { sample_us } = config.lidar {
+            t.sample_us = u32::from(sample_us);
+        }
+        t
     }
 
     /// The counters so far.
@@ -142,21 +226,34 @@ impl Turns {
         self.queue.len()
     }
 
-    /// Whether one more packet fits without dropping one: the reader holds the lidar back
-    /// otherwise.
+    /// Whether the batches one more read can complete fit without dropping one (two: an
+    /// RPLIDAR parser locking on hands out a few nodes at once, and a start flag among them
+    /// closes a batch early): the reader holds the lidar back otherwise.
     pub fn wants_packets(&self) -> bool {
-        self.queue.len() < QUEUE
+        self.queue.len() + 2 <= QUEUE
     }
 
-    /// Whether one more pose can be taken without forgetting one a packet still to come may
-    /// need: the oldest may go only if the next one is not after the earliest packet still to
-    /// be placed (the first waiting, else the last placed). The reader holds the poses back
-    /// otherwise.
+    /// Poses the track takes before it has to forget one (then [`Turns::wants_poses`] decides
+    /// pose by pose).
+    pub fn pose_room(&self) -> usize {
+        POSES.saturating_sub(self.track.len())
+    }
+
+    /// Whether one more pose can be taken without forgetting one a batch still to come may
+    /// need: the oldest may go only if the next one is not after the earliest batch still to
+    /// be placed (the first waiting, else the RPLIDAR nodes being collected, else the last
+    /// placed). The reader holds the poses back otherwise.
     pub fn wants_poses(&self) -> bool {
         if self.track.len() < POSES {
             return true;
         }
-        let next_packet = self.queue.front().map(|q| q.t_us).or(self.placed_us);
+        let filling = (self.filling.len > 0).then_some(self.filling.t_us);
+        let next_packet = self
+            .queue
+            .front()
+            .map(|q| q.t_us)
+            .or(filling)
+            .or(self.placed_us);
         match (self.track.second_oldest(), next_packet) {
             (Some(next), Some(t)) => next.t_us <= t,
             _ => false,
@@ -170,7 +267,7 @@ impl Turns {
         t_us: u64,
         pose: Pose,
         scan: &mut ScanBuf<N>,
-        f: impl FnMut(Turn<'_>),
+        mut f: impl FnMut(Turn<'_>),
     ) -> Result<(), TrackError> {
         if let Some(last) = self.track.latest() {
             if last.t_us == t_us && last.pose == pose {
@@ -182,7 +279,7 @@ impl Turns {
             return Err(e);
         }
         bump(&mut self.counters.poses);
-        self.drain(scan, f);
+        self.drain(scan, &mut f);
         Ok(())
     }
 
@@ -192,9 +289,8 @@ impl Turns {
         &mut self,
         packet: &Packet,
         scan: &mut ScanBuf<N>,
-        f: impl FnMut(Turn<'_>),
+        mut f: impl FnMut(Turn<'_>),
     ) {
-        bump(&mut self.counters.packets);
         let raw = packet.timestamp_ms;
         let t_ms = match self.clock {
             None => u64::from(raw),
@@ -204,21 +300,67 @@ impl Turns {
             }
         };
         self.clock = Some((raw, t_ms));
+        self.enqueue(Batch::of_packet(packet, t_ms.saturating_mul(1000)));
+        self.drain(scan, &mut f);
+    }
+
+    /// An RPLIDAR node ([`crate::rplidar`]); it joins the batch being filled, which is queued
+    /// when it holds [`BATCH`] nodes or when a start-flagged node begins the next turn. Hands
+    /// out the turns that finish. The node's time is the nodes taken before it × the sample
+    /// period of [`Turns::configured`]'s settings.
+    pub fn push_node<const N: usize>(
+        &mut self,
+        node: &Node,
+        scan: &mut ScanBuf<N>,
+        mut f: impl FnMut(Turn<'_>),
+    ) {
+        let t_us = self.nodes.saturating_mul(u64::from(self.sample_us));
+        self.nodes = self.nodes.saturating_add(1);
+        if node.start && self.filling.len > 0 {
+            self.flush();
+        }
+        let b = &mut self.filling;
+        if b.len == 0 {
+            b.t_us = t_us;
+            b.mark = Mark::Flag(node.start);
+        }
+        let beam = node.beam();
+        if let Some(s) = b.samples.get_mut(usize::from(b.len)) {
+            *s = Sample {
+                angle: beam.angle,
+                mm: match beam.range {
+                    // At most (65 535 + 2) / 4 = 16 384 mm.
+                    Range::Hit(mm) => u16::try_from(mm).unwrap_or(u16::MAX),
+                    Range::NoReturn => 0,
+                },
+            };
+            b.len += 1;
+        }
+        if usize::from(b.len) >= BATCH {
+            self.flush();
+        }
+        self.drain(scan, &mut f);
+    }
+
+    /// Queues the batch being filled.
+    fn flush(&mut self) {
+        let b = core::mem::replace(&mut self.filling, Batch::EMPTY);
+        self.enqueue(b);
+    }
+
+    fn enqueue(&mut self, batch: Batch) {
+        bump(&mut self.counters.packets);
         if self.queue.is_full() {
             self.queue.pop_front();
             bump(&mut self.counters.packets_overflowed);
         }
-        let _ = self.queue.push_back(Queued {
-            t_us: t_ms.saturating_mul(1000),
-            packet: *packet,
-        });
-        self.drain(scan, f);
+        let _ = self.queue.push_back(batch);
     }
 
-    /// Places every queued packet whose pose is known, in order. Not inlined: both `push_*`
+    /// Places every queued batch whose pose is known, in order. Not inlined: both `push_*`
     /// call it, and one copy of it is enough flash.
     #[inline(never)]
-    fn drain<const N: usize>(&mut self, scan: &mut ScanBuf<N>, mut f: impl FnMut(Turn<'_>)) {
+    fn drain<const N: usize>(&mut self, scan: &mut ScanBuf<N>, f: &mut dyn FnMut(Turn<'_>)) {
         while let Some(q) = self.queue.front().copied() {
             let robot = if self.fixed {
                 Pose::default()
@@ -238,20 +380,25 @@ impl Turns {
                 }
             };
             self.queue.pop_front();
-            self.place(&q, &self.mount.sensor_pose(&robot), scan, &mut f);
+            self.place(&q, &self.mount.sensor_pose(&robot), scan, f);
         }
     }
 
     fn place<const N: usize>(
         &mut self,
-        q: &Queued,
+        q: &Batch,
         sensor: &Pose,
         scan: &mut ScanBuf<N>,
-        f: &mut impl FnMut(Turn<'_>),
+        f: &mut dyn FnMut(Turn<'_>),
     ) {
-        let start = q.packet.start_cdeg;
-        let new_turn = self.last_start.is_none_or(|last| start < last);
-        self.last_start = Some(start);
+        let new_turn = match q.mark {
+            Mark::Start(start) => {
+                let new = self.last_start.is_none_or(|last| start < last);
+                self.last_start = Some(start);
+                new
+            }
+            Mark::Flag(start) => start || self.open.is_none(),
+        };
         self.placed_us = Some(q.t_us);
         if new_turn {
             if let Some((seq, pose, t_us)) = self.open.take() {
@@ -271,10 +418,8 @@ impl Turns {
         let Some((_, reference, _)) = self.open else {
             return;
         };
-        for i in 0..POINTS {
-            if let Some(b) = q.packet.beam(i) {
-                scan.push(deskew(b, sensor, &reference));
-            }
+        for b in q.beams() {
+            scan.push(deskew(b, sensor, &reference));
         }
     }
 }
@@ -343,7 +488,7 @@ fn isqrt_round(v: u64) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ld06::Point;
+    use crate::ld06::{Point, POINTS};
 
     fn pose(x: i32, y: i32, deg: f64) -> Pose {
         Pose::new(x, y, Angle::from_degrees(deg))
@@ -635,7 +780,7 @@ mod tests {
         assert_eq!(n, 0);
         // Without poses the queue fills; the reader is told, and beyond it packets are lost.
         for k in 0..QUEUE as u16 + 3 {
-            assert_eq!(t.wants_packets(), k < QUEUE as u16);
+            assert_eq!(t.wants_packets(), k + 1 < QUEUE as u16);
             t.push_packet(&packet(1440, 100 + k, 1000), &mut scan, |_| ());
         }
         assert_eq!(t.counters().packets_overflowed, 3);
@@ -649,5 +794,124 @@ mod tests {
             k += 1;
         }
         assert_eq!(k as usize, POSES);
+    }
+
+    /// The same beams at the same times, as LD06 packets and as RPLIDAR nodes (a turn of 360
+    /// points 1° apart in 180 ms: an A1's 2 000 samples/s; 30 batches of 12, one every 6 ms),
+    /// give the same turns, placed by the same poses of a moving robot.
+    #[test]
+    fn rplidar_nodes_give_the_turns_of_the_same_ld06_packets() {
+        use crate::rplidar::Node;
+        let mount = Mount {
+            x_mm: 80,
+            y_mm: 10,
+            yaw: Angle::from_degrees(-90.0),
+        };
+        let truth = |t_us: u64| {
+            let t = t_us as f64 / 1e6;
+            pose((300.0 * t) as i32, (50.0 * t) as i32, 15.0 * t)
+        };
+        let range = |k: u64| ((1000 + (k * 37) % 3000) as u16, (k % 17 == 3));
+        let config = RunConfig {
+            lidar: LidarModel::Rplidar { sample_us: 500 },
+            mount: crate::wire::WirePose {
+                x_mm: mount.x_mm,
+                y_mm: mount.y_mm,
+                heading: mount.yaw.0,
+            },
+            ..RunConfig::paper((0, 0), 8000, 1, crate::wire::Budget::Fixed { updates: 0 })
+        };
+        let (turns, per_turn) = (4u64, 30u64);
+        let mut ld = Turns::configured(&RunConfig {
+            lidar: LidarModel::Ld06,
+            ..config
+        });
+        let mut rp = Turns::configured(&config);
+        let (mut sa, mut sb) = (ScanBuf::<512>::new(), ScanBuf::<512>::new());
+        let (mut a, mut b) = (Vec::<Out>::new(), Vec::<Out>::new());
+        let mut next_pose = 0u64;
+        for j in 0..=turns * per_turn {
+            let t_us = j * 6000;
+            // Poses every 20 ms, up to the batch's time (the queue holds the rest).
+            while next_pose <= t_us + 20_000 {
+                let p = truth(next_pose);
+                let mut fa = |t: Turn<'_>| a.push((t.seq, t.pose, t.t_us, t.beams.to_vec()));
+                ld.push_pose(next_pose, p, &mut sa, &mut fa).unwrap();
+                let mut fb = |t: Turn<'_>| b.push((t.seq, t.pose, t.t_us, t.beams.to_vec()));
+                rp.push_pose(next_pose, p, &mut sb, &mut fb).unwrap();
+                next_pose += 20_000;
+            }
+            let start = ((j % per_turn) * 1200) as u16;
+            let mut pk = packet(start, (t_us / 1000) as u16, 0);
+            pk.end_cdeg = start + 1100;
+            for i in 0..POINTS as u64 {
+                let (mm, none) = range(j * 12 + i);
+                pk.points[i as usize].distance_mm = if none { 0 } else { mm };
+                let node = Node {
+                    start: i == 0 && j % per_turn == 0,
+                    quality: 47,
+                    angle_q6: (((j % per_turn) * 12 + i) * 64) as u16,
+                    distance_q2: if none { 0 } else { mm * 4 },
+                };
+                rp.push_node(&node, &mut sb, |t| {
+                    b.push((t.seq, t.pose, t.t_us, t.beams.to_vec()))
+                });
+            }
+            ld.push_packet(&pk, &mut sa, |t| {
+                a.push((t.seq, t.pose, t.t_us, t.beams.to_vec()))
+            });
+        }
+        assert_eq!(a.len(), turns as usize);
+        assert_eq!(a[1].3.len(), 360);
+        assert_ne!(a[1].1, a[2].1, "the robot moves");
+        assert_eq!(a, b);
+        assert_eq!(ld.counters(), rp.counters());
+        // Poses as far ahead as the reader lets them run (`wants_poses`): the nodes being
+        // collected hold them back too, so none is dropped and the turns are the same.
+        let mut rp = Turns::configured(&config);
+        let mut c = Vec::<Out>::new();
+        let mut next_pose = 0u64;
+        for j in 0..=turns * per_turn {
+            for i in 0..POINTS as u64 {
+                // Between any two nodes (a batch half collected, too).
+                while rp.wants_poses() && next_pose <= (turns * per_turn + 1) * 6000 + 20_000 {
+                    let mut fc = |t: Turn<'_>| c.push((t.seq, t.pose, t.t_us, t.beams.to_vec()));
+                    rp.push_pose(next_pose, truth(next_pose), &mut sb, &mut fc)
+                        .unwrap();
+                    next_pose += 20_000;
+                }
+                let (mm, none) = range(j * 12 + i);
+                let node = Node {
+                    start: i == 0 && j % per_turn == 0,
+                    quality: 47,
+                    angle_q6: (((j % per_turn) * 12 + i) * 64) as u16,
+                    distance_q2: if none { 0 } else { mm * 4 },
+                };
+                rp.push_node(&node, &mut sb, |t| {
+                    c.push((t.seq, t.pose, t.t_us, t.beams.to_vec()))
+                });
+            }
+        }
+        assert_eq!(rp.counters().packets_without_pose, 0);
+        assert_eq!(a, c);
+        // A start flag in the middle of a batch closes it: the turn after it starts there.
+        let mut t = Turns::configured(&RunConfig {
+            poses: PoseInput::Fixed,
+            ..config
+        });
+        let mut s = ScanBuf::<64>::new();
+        let mut out = Vec::new();
+        for k in 0..30u16 {
+            let node = Node {
+                start: k == 5 || k == 15,
+                quality: 47,
+                angle_q6: (k % 10) * 64,
+                distance_q2: 4000,
+            };
+            t.push_node(&node, &mut s, |turn| out.push(turn.beams.len()));
+        }
+        // Nodes 0-4 (no start seen: a partial turn), then 5-14, handed out when the batch of
+        // nodes 15-26 is placed; 27-29 are still being collected.
+        assert_eq!(out, vec![5, 10]);
     }
 }

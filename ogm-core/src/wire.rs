@@ -44,6 +44,10 @@ pub static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 /// with every field at its maximum is 113 bytes; tested).
 pub const MAX_HOST_FRAME: usize = 128;
 
+/// Fewest bytes of a [`HostMsg::Pose`] frame on the wire (a lower bound; tested): a read of
+/// `n` link bytes completes at most `n / MIN_POSE_FRAME + 1` poses.
+pub const MIN_POSE_FRAME: usize = 8;
+
 /// Longest tile payload: 16 × 16 cells of `i16`.
 pub const MAX_TILE_BYTES: usize = 512;
 
@@ -166,6 +170,48 @@ pub struct RunConfig {
     /// without it reads as [`PoseInput::Link`].
     #[serde(default)]
     pub poses: PoseInput,
+    /// The range sensor on the robot's own UART. A settings file without it reads as
+    /// [`LidarModel::Ld06`].
+    #[serde(default)]
+    pub lidar: LidarModel,
+}
+
+/// The range sensor on the robot's own UART ([`crate::turn`]); scans a host tunnels do not use
+/// it.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LidarModel {
+    /// LDROBOT LD06 (or LD19), [`crate::ld06`]: 230 400 baud, streams 12-point packets stamped
+    /// with its own millisecond clock; the device never writes to it.
+    #[default]
+    Ld06,
+    /// Slamtec RPLIDAR A1/A2 in standard scan mode, [`crate::rplidar`]: 115 200 baud; the
+    /// device starts it with `STOP`, `SCAN`. Its nodes carry no time, so the lidar clock is
+    /// the count of nodes received × `sample_us` (the sensor's `GET_SAMPLERATE` standard
+    /// period; about 500 µs on an A1 at 2 000 samples/s). A node lost to a bit error shifts
+    /// the later ones by one period.
+    Rplidar {
+        /// Time between two nodes, µs (1 or more).
+        sample_us: u16,
+    },
+}
+
+impl LidarModel {
+    /// The UART baud rate the sensor talks at.
+    pub const fn baud(&self) -> u32 {
+        match self {
+            LidarModel::Ld06 => 230_400,
+            LidarModel::Rplidar { .. } => 115_200,
+        }
+    }
+
+    /// Whether the settings can be used (an RPLIDAR needs a sample period).
+    pub const fn is_valid(&self) -> bool {
+        match self {
+            LidarModel::Ld06 => true,
+            LidarModel::Rplidar { sample_us } => *sample_us > 0,
+        }
+    }
 }
 
 /// Where the robot's poses come from when the lidar is on the robot's own UART
@@ -229,6 +275,7 @@ impl RunConfig {
                 heading: 0,
             },
             poses: PoseInput::Link,
+            lidar: LidarModel::Ld06,
         }
     }
 
@@ -900,6 +947,8 @@ detail_enum! {
         Sampler = 4 => "sampler",
         /// The device has no room left for a mapping state.
         NoRoom = 5 => "no room for the mapping state",
+        /// The lidar settings ([`LidarModel::is_valid`]).
+        Lidar = 6 => "lidar",
     }
 }
 
@@ -1195,7 +1244,21 @@ mod tests {
                 heading: u16::MAX,
             },
             poses: PoseInput::Fixed,
+            lidar: LidarModel::Rplidar {
+                sample_us: u16::MAX,
+            },
         }
+    }
+
+    #[test]
+    fn min_pose_frame_is_a_lower_bound() {
+        let mut buf = [0u8; MAX_HOST_FRAME];
+        let smallest = HostMsg::Pose {
+            t_us: 0,
+            pose: WirePose::default(),
+        };
+        let n = encode(&smallest, &mut buf).map(|b| b.len()).unwrap();
+        assert!(n >= MIN_POSE_FRAME, "{n}");
     }
 
     #[test]

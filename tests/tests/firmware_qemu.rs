@@ -109,3 +109,49 @@ fn the_robot_loop_in_qemu_maps_its_lidar_uart_like_the_host() {
     );
     assert_eq!(c.lidar.poses as usize, robot.poses_sent, "{c:?}");
 }
+
+/// RPLIDAR on the robot's UART (issue 14): the firmware built with its `rplidar` feature, set
+/// to an RPLIDAR A1 by the settings, sends the sensor `SCAN` and maps the simulated nodes (a
+/// `SCAN` descriptor, then 5-byte nodes, 360 a turn, no timestamps: the robot times them by
+/// their count). The same scans sent as LD06 packets (`--pattern a1`: the same beams at the
+/// same times) to the default image give the same map: the same log-odds grid and, with the
+/// same sampler updates per turn, the same marginals. Both runs are bit-exact with the host.
+#[test]
+fn an_rplidar_maps_in_qemu_what_the_same_scans_as_ld06_packets_map() {
+    let test = "an_rplidar_maps_in_qemu_what_the_same_scans_as_ld06_packets_map";
+    let base = FirmwareArgs {
+        seed: 4,
+        robot: true,
+        max_scans: Some(16),
+        fixed_updates: Some(3000),
+        timeout: 120,
+        ..FirmwareArgs::default()
+    };
+    let rplidar = FirmwareArgs {
+        lidar: host_sim::firmware::LidarArg::Rplidar,
+        ..base.clone()
+    };
+    let ld06 = FirmwareArgs {
+        pattern: Some(host_sim::firmware::PatternArg::A1),
+        ..base
+    };
+    let (Some(a), Some(b)) = (run_bit_exact(test, &rplidar), run_bit_exact(test, &ld06)) else {
+        return;
+    };
+    for r in [&a, &b] {
+        let robot = r.robot.as_ref().expect("robot report");
+        assert_eq!(robot.turns_mapped, robot.turns_sent as usize, "{robot:?}");
+        let c = r.counters.expect("final counters");
+        assert_eq!(
+            c.lidar.bad_packets + c.lidar.packets_without_pose + c.lidar.packets_overflowed,
+            0,
+            "{c:?}"
+        );
+    }
+    let (da, db) = (a.done.expect("Done"), b.done.expect("Done"));
+    assert_eq!(da.scans, 16);
+    assert_eq!(
+        (da.scans, da.grid_fnv, da.counts_fnv),
+        (db.scans, db.grid_fnv, db.counts_fnv)
+    );
+}

@@ -78,8 +78,8 @@ pub trait Board: Sized {
     const SIZES: ogm_firmware::sizes::BoardSizes;
     /// The host link: map stream out, settings and poses in.
     type Link: embedded_io::Read + embedded_io::ReadReady + embedded_io::Write;
-    /// The range sensor's UART, receive side.
-    type Lidar: embedded_io::Read + embedded_io::ReadReady;
+    /// The range sensor's UART (an LD06 only sends; an RPLIDAR is sent its requests).
+    type Lidar: ogm_firmware::LidarPort;
     /// The free-running clock, and what else the application asks of the board.
     type Clock: ogm_firmware::Platform;
 

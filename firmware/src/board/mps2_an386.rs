@@ -361,6 +361,14 @@ impl<const N: usize> embedded_io::Write for Uart<N> {
     }
 }
 
+impl<const N: usize> ogm_firmware::LidarPort for Uart<N> {
+    fn set_baud(&mut self, baud: u32) {
+        // SAFETY: BAUDDIV is a register of this driver's own CMSDK UART block (`Uart::new`).
+        let bauddiv = unsafe { Reg::at(self.irq.base() + UART_BAUDDIV) };
+        bauddiv.write((SYSCLK_HZ / baud.max(1)).max(16));
+    }
+}
+
 impl<const N: usize> embedded_io::WriteReady for Uart<N> {
     fn write_ready(&mut self) -> Result<bool, UartError> {
         Ok(self.state.read() & STATE_TXFULL == 0)

@@ -5,9 +5,12 @@
 //! * **Host link**: UARTE0 on the DK's interface MCU (J-Link virtual COM port over the same USB
 //!   cable that flashes it): P0.08 RXD, P0.06 TXD, 921 600 baud. Map stream out, settings and
 //!   poses in.
-//! * **Lidar**: UARTE1, receive only, on [`LIDAR_RX_PIN`] (P1.01, a pin no DK peripheral uses),
-//!   230 400 baud: the LD06's `Tx` wire. Its `PWM` wire to GND (internal speed control),
-//!   `P5V`/`GND` to the DK's 5 V and GND.
+//! * **Lidar**: UARTE1 on [`LIDAR_RX_PIN`] (P1.01, a pin no DK peripheral uses), at the
+//!   settings' lidar's rate. LD06 (230 400 baud): its `Tx` wire to P1.01, `PWM` to GND (internal
+//!   speed control), `P5V`/`GND` to the DK's 5 V and GND; receive only. With the `rplidar`
+//!   feature the UARTE also transmits on [`LIDAR_TX_PIN`] (P1.02): an RPLIDAR A1 (115 200 baud)
+//!   has `TX` to P1.01, `RX` to P1.02 (the firmware sends it `SCAN`), `MOTOCTL` to 5 V (motor
+//!   on), `VCC`/`GND` to 5 V and GND.
 //! * Both UARTs are embassy-nrf `BufferedUarte`s: the UARTE's EasyDMA receives into a ring
 //!   buffer while the sampler runs, a TIMER counts the bytes through PPI, overruns are reported
 //!   as errors (the application counts them). The application polls them through
@@ -20,7 +23,9 @@
 use super::StaticBuf;
 use core::sync::atomic::AtomicBool;
 use defmt_rtt as _; // the global defmt logger
-use embassy_nrf::buffered_uarte::{self, BufferedUarte, BufferedUarteRx};
+#[cfg(not(feature = "rplidar"))]
+use embassy_nrf::buffered_uarte::BufferedUarteRx;
+use embassy_nrf::buffered_uarte::{self, BufferedUarte};
 use embassy_nrf::{bind_interrupts, peripherals, uarte};
 use ogm_firmware::sizes::BoardSizes;
 use panic_probe as _;
@@ -31,8 +36,10 @@ pub const BOARD_NAME: &str = "nRF52840-DK";
 /// CPU clock = DWT cycle counter, Hz.
 pub const TICK_HZ: u32 = 64_000_000;
 
-/// The pin the LD06's `Tx` wire goes to.
+/// The pin the lidar's transmit wire goes to.
 pub const LIDAR_RX_PIN: &str = "P1.01";
+/// The pin the lidar's receive wire goes to (an RPLIDAR's requests; `rplidar` feature).
+pub const LIDAR_TX_PIN: &str = "P1.02";
 
 const LIDAR_BAUD: uarte::Baudrate = uarte::Baudrate::Baud230400;
 const LINK_BAUD: uarte::Baudrate = uarte::Baudrate::Baud921600;
@@ -45,12 +52,14 @@ bind_interrupts!(struct Irqs {
 // Receive/transmit rings (EasyDMA reads and writes RAM only, so they are statics in RAM). The
 // lidar's 4 KiB is ~180 ms of an LD06, longer than the main loop ever leaves it.
 static LIDAR_RX: StaticBuf<[u8; 4096]> = StaticBuf::new([0; 4096]);
+#[cfg(feature = "rplidar")]
+static LIDAR_TX: StaticBuf<[u8; 16]> = StaticBuf::new([0; 16]);
 static LINK_RX: StaticBuf<[u8; 1024]> = StaticBuf::new([0; 1024]);
 static LINK_TX: StaticBuf<[u8; 1024]> = StaticBuf::new([0; 1024]);
 
 /// The board's peripherals, handed out once ([`super::Board::take`]).
 pub struct Nrf52840Dk {
-    /// UARTE1, receive only: the range sensor.
+    /// UARTE1: the range sensor.
     pub lidar: LidarUart,
     /// UARTE0 (the DK's USB virtual COM port): the host link.
     pub link: Uart,
@@ -97,7 +106,8 @@ impl super::Board for Nrf52840Dk {
         );
         let mut c = uarte::Config::default();
         c.baudrate = LIDAR_BAUD;
-        let lidar = BufferedUarteRx::new(
+        #[cfg(not(feature = "rplidar"))]
+        let lidar = LidarUart(BufferedUarteRx::new(
             p.UARTE1,
             p.TIMER1,
             p.PPI_CH2,
@@ -107,9 +117,23 @@ impl super::Board for Nrf52840Dk {
             p.P1_01,
             c,
             lidar_rx,
-        );
+        ));
+        #[cfg(feature = "rplidar")]
+        let lidar = Uart(BufferedUarte::new(
+            p.UARTE1,
+            p.TIMER1,
+            p.PPI_CH2,
+            p.PPI_CH3,
+            p.PPI_GROUP1,
+            p.P1_01,
+            p.P1_02,
+            Irqs,
+            c,
+            lidar_rx,
+            LIDAR_TX.take()?,
+        ));
         Some(Nrf52840Dk {
-            lidar: LidarUart(lidar),
+            lidar,
             link: Uart(link),
             timer: Timer,
         })
@@ -138,8 +162,13 @@ pub fn exit(code: i32) -> ! {
 /// byte, writes for room in the transmit ring).
 pub struct Uart(BufferedUarte<'static>);
 
-/// The lidar's receive-only `BufferedUarteRx` as blocking `embedded_io`.
+/// The lidar's UARTE, receive only (an LD06 is never written to), as blocking `embedded_io`.
+#[cfg(not(feature = "rplidar"))]
 pub struct LidarUart(BufferedUarteRx<'static>);
+
+/// The lidar's UARTE, both ways (an RPLIDAR is sent its requests): the link's type.
+#[cfg(feature = "rplidar")]
+pub type LidarUart = Uart;
 
 /// UART errors: the UARTE's receive ring overflowed.
 pub type UartError = buffered_uarte::Error;
@@ -148,6 +177,7 @@ impl embedded_io::ErrorType for Uart {
     type Error = UartError;
 }
 
+#[cfg(not(feature = "rplidar"))]
 impl embedded_io::ErrorType for LidarUart {
     type Error = UartError;
 }
@@ -177,6 +207,7 @@ impl embedded_io::Write for Uart {
     }
 }
 
+#[cfg(not(feature = "rplidar"))]
 impl embedded_io::Read for LidarUart {
     #[inline(never)] // one copy of the driver's future, not one per caller (flash)
     fn read(&mut self, buf: &mut [u8]) -> Result<usize, UartError> {
@@ -184,9 +215,43 @@ impl embedded_io::Read for LidarUart {
     }
 }
 
+#[cfg(not(feature = "rplidar"))]
 impl embedded_io::ReadReady for LidarUart {
     fn read_ready(&mut self) -> Result<bool, UartError> {
         embedded_io::ReadReady::read_ready(&mut self.0)
+    }
+}
+
+/// No transmit pin: nothing to send to an LD06 (the application writes to the lidar only for an
+/// RPLIDAR, whose settings an image without the `rplidar` feature refuses).
+#[cfg(not(feature = "rplidar"))]
+impl embedded_io::Write for LidarUart {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, UartError> {
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> Result<(), UartError> {
+        Ok(())
+    }
+}
+
+#[cfg(not(feature = "rplidar"))]
+impl ogm_firmware::LidarPort for LidarUart {
+    fn set_baud(&mut self, baud: u32) {
+        // The receive half cannot change its rate; an LD06 talks at the rate it was built
+        // with. Anything else is refused before this.
+        let _ = baud;
+    }
+}
+
+#[cfg(feature = "rplidar")]
+impl ogm_firmware::LidarPort for Uart {
+    fn set_baud(&mut self, baud: u32) {
+        use uarte::Baudrate as B;
+        self.0.set_baudrate(match baud {
+            115_200 => B::Baud115200,
+            _ => B::Baud230400,
+        });
     }
 }
 
