@@ -143,18 +143,6 @@ impl PatchTerms {
     }
 }
 
-/// [`PatchTerms`] of a patch that may have no evidence at all (`None`: every term is 0).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct MaybeTerms<'a>(pub(crate) Option<&'a PatchTerms>);
-
-impl MaybeTerms<'_> {
-    /// The evidence term of `config`, 0 without evidence.
-    #[inline]
-    pub(crate) fn of(&self, config: u16) -> i32 {
-        self.0.map_or(0, |t| t.of(config))
-    }
-}
-
 /// The scale of free evidence (Q8) that matches a range sensor with Gaussian noise of `sigma`
 /// cells: the Hähnel inverse model frees every cell a beam passes and hits the cell it ends in,
 /// so at a wall's face a noisy beam passes the face cell with probability

@@ -500,6 +500,8 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     hot_span: (usize, usize),
     /// The estimate's averaging shift on this tile visit ([`Estimator::shift_at`]).
     visit_shift: u8,
+    /// The evidence update's candidate weights (only the entries an update wrote are read).
+    scratch: [u32; MAX_CANDIDATES + 1],
     /// Evidence gains in effect (Q8), occupied and free: the configured ones, scaled for the
     /// hybrid term.
     ev_gain: i32,
@@ -702,6 +704,7 @@ where
             hot: HotTiles::new(tiles_x, tiles_y),
             hot_span: (1, 0),
             visit_shift: config.estimator.shift_at(0),
+            scratch: [0; MAX_CANDIDATES + 1],
             ev_gain: 0,
             ev_free_gain: 0,
             _count: core::marker::PhantomData,
@@ -1406,14 +1409,13 @@ where
             configs.get(..k).unwrap_or(&[]),
             log_priors.get(..k).unwrap_or(&[]),
         );
-        let extra = if self.config.data_candidate {
-            let d = (current & !known) | occupied;
-            (!configs.contains(&d)).then_some(d)
-        } else {
-            None
-        };
+        // The evidence's own configuration, a candidate (at the floor log-prior) when the
+        // prior's top-k lacks it: checked against the first candidate here, and against the
+        // others in the weights' pass (it is only needed where there are weights).
+        let data_candidate = self.config.data_candidate;
+        let d = (current & !known) | occupied;
         let first = configs.first().copied().unwrap_or(current);
-        if extra.is_none() && k <= 1 {
+        if k <= 1 && (!data_candidate || (k == 1 && first == d)) {
             self.stats.single_candidate += 1;
             self.average_config(centre, first);
             return first;
@@ -1422,7 +1424,7 @@ where
         // The patch's log-odds, read only now that weights are needed, and only if a cell has
         // any (unobserved patches, common in the uniform share of tile visits, weigh by the
         // prior alone).
-        let ev = (known != 0).then(|| {
+        let ev = if known != 0 {
             evidence::PatchTerms::new(
                 map,
                 usize::from(self.geometry.width()),
@@ -1430,17 +1432,23 @@ where
                 self.ev_gain,
                 self.ev_free_gain,
             )
-        });
-        let ev = evidence::MaybeTerms(ev.as_ref());
+        } else {
+            evidence::PatchTerms::default()
+        };
         // Log-weights, the extra candidate last, and the best of them in the same pass; then,
-        // in place, the weights (`weights_q16`'s, one array instead of two).
-        let mut q = [0u32; MAX_CANDIDATES + 1];
+        // in place, the weights (`weights_q16`'s, one array instead of two). The array is the
+        // sampler's scratch: only its first `n` entries are read, each written first (a local
+        // array would be zeroed on every update).
+        let q = &mut self.scratch;
         let mut best = i32::MIN;
+        let mut listed = false;
         for ((qi, &c), &lp) in q.iter_mut().zip(configs).zip(log_priors) {
             let w = i32::from(lp) + ev.of(c);
             best = best.max(w);
             *qi = w as u32;
+            listed |= c == d;
         }
+        let extra = (data_candidate && !listed).then_some(d);
         let n = match extra {
             Some(d) => {
                 let w = floor + ev.of(d);
@@ -1473,6 +1481,7 @@ where
             for (j, c) in cands.iter_mut().enumerate().take(n) {
                 c.config = config_of(j);
             }
+            let q = self.scratch;
             self.rao_blackwell(
                 centre,
                 cands.get(..n).unwrap_or(&[]),
