@@ -1800,7 +1800,9 @@ where
     }
 
     /// Writes `config` into the patch at `centre` and updates the caches of the rays crossing it
-    /// (from `cache` when the likelihood already computed every crossing).
+    /// (from `cache` when the likelihood already computed every crossing). Not inlined: one copy
+    /// for its three callers.
+    #[inline(never)]
     fn apply<S, R>(
         &mut self,
         store: &mut RayStore<S, R>,
@@ -1861,8 +1863,9 @@ where
         }
     }
 
-    /// Writes the `n` ≤ 25 bits `v` into the sample at cells `index..index + n`.
-    #[inline]
+    /// Writes the `n` ≤ 31 bits `v` into the sample at cells `index..index + n`. Not inlined:
+    /// its callers (a changed patch's rows, a raster run's rows) are not the hot path.
+    #[inline(never)]
     fn set_bits(&mut self, index: usize, n: u32, v: u32) {
         let words = self.buf.sample.as_mut();
         let (w, off) = (index / 32, (index % 32) as u32);

@@ -166,6 +166,20 @@ where
         (k, o)
     }
 
+    /// Writes the segment's rows y − 1 ..= y + 1 (`rows`, what [`Gibbs::sample_row`] read and the
+    /// run's changed patches wrote into) back into the sample. Not inlined: once per run that
+    /// changed a patch.
+    #[inline(never)]
+    fn raster_store(&mut self, rows: [u32; 3]) {
+        let width = usize::from(self.geometry.width());
+        let (x, n) = (self.raster.x_start - 2, (self.raster.span + 4) as u32);
+        for (y, row) in (self.raster.y - 1..).zip(rows) {
+            if y >= 0 && x >= 0 {
+                self.set_bits(y as usize * width + x as usize, n, row);
+            }
+        }
+    }
+
     /// Moves `n` centres on in the tile's raster order, within the current segment or just past
     /// its end (then the next update reads a new one, on the next row past the tile's last
     /// column).
@@ -203,6 +217,9 @@ where
         let (x_start, y) = (self.raster.x_start, self.raster.y);
         // `random_patch_due`'s countdown as a local for the run.
         let (period, mut gap) = (self.rand_period, self.rand_gap);
+        // Whether an evidence update changed its patch: the sample's rows are then written
+        // back from `rows` once, after the run (nothing reads the sample during it).
+        let mut dirty = false;
         for x in self.raster.x..self.raster.x + n as i32 {
             let centre = CellCoord { x, y };
             // The centre's offset in the segment (0 ≤ s < span ≤ 27).
@@ -233,7 +250,11 @@ where
                 let new = self.evidence_update(map, centre, current, masks, configs, log_priors);
                 if new != current {
                     self.stats.changed += 1;
-                    self.apply(store, centre, new, None);
+                    dirty = true;
+                    if cfg!(debug_assertions) {
+                        // Debug builds keep the sample current for the fresh-read checks above.
+                        self.apply(store, centre, new, None);
+                    }
                 }
                 new
             } else {
@@ -247,6 +268,10 @@ where
                     *row = (*row & !(7 << (sh + 1))) | bits << (sh + 1);
                 }
             }
+        }
+        if dirty {
+            let [_, r1, r2, r3, _] = rows;
+            self.raster_store([r1, r2, r3]);
         }
         self.raster.rows = rows;
         self.rand_gap = gap;
