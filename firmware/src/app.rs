@@ -204,12 +204,29 @@ pub(crate) struct State<'a, S: Storage> {
 fn send<W: Write>(tx: &mut [u8], link: &mut W, msg: &DeviceMsg<'_>) {
     match wire::encode(msg, tx) {
         Ok(bytes) => {
-            if link.write_all(bytes).is_err() {
+            if !write_all(link, bytes) {
                 error!("link: write failed");
             }
         }
         Err(e) => error!("link: cannot encode a frame: {}", e),
     }
+}
+
+/// Writes all of `bytes`; `false` if the writer failed, wrote nothing or claimed more than it was
+/// given. Not `embedded_io::Write::write_all`: that one panics on a writer's `Ok(0)` and slices
+/// with the writer's count, and its panic messages alone pull `core::fmt` (~2.3 KiB) into the
+/// image.
+fn write_all<W: Write>(w: &mut W, mut bytes: &[u8]) -> bool {
+    while !bytes.is_empty() {
+        match w.write(bytes) {
+            Ok(n) if n > 0 => match bytes.get(n..) {
+                Some(rest) => bytes = rest,
+                None => return false,
+            },
+            _ => return false,
+        }
+    }
+    true
 }
 
 fn ticks(t0: u32, t1: u32) -> u32 {
@@ -1031,12 +1048,12 @@ where
 fn start_lidar<R: LidarPort, P: Platform>(lidar: &mut R, platform: &P, model: LidarModel) {
     lidar.set_baud(model.baud());
     if cfg!(feature = "rplidar") && matches!(model, LidarModel::Rplidar { .. }) {
-        let ok = lidar.write_all(&ogm_core::rplidar::REQ_STOP).is_ok() && lidar.flush().is_ok();
+        let ok = write_all(lidar, &ogm_core::rplidar::REQ_STOP) && lidar.flush().is_ok();
         // ≥ 1 ms after STOP (2 ms: the byte may still be on the wire when `flush` returns).
         let t0 = platform.now();
         let wait = (2_000 * u64::from(P::TICK_HZ) / 1_000_000) as u32;
         while platform.now().wrapping_sub(t0) < wait {}
-        if !(ok && lidar.write_all(&ogm_core::rplidar::REQ_SCAN).is_ok() && lidar.flush().is_ok()) {
+        if !(ok && write_all(lidar, &ogm_core::rplidar::REQ_SCAN) && lidar.flush().is_ok()) {
             error!("lidar: cannot send the RPLIDAR its requests");
         }
     }
