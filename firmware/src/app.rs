@@ -26,8 +26,8 @@ use ogm_core::session::{Buffers, Session, Sizes, Storage};
 use ogm_core::turn::{Turn, Turns};
 use ogm_core::wire::{
     self, Budget, ConfigFault, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello,
-    IdleReport, Layer, LidarCounters, LidarModel, LinkCounters, PoseInput, RunConfig, ScanReport,
-    Tile, TileRect,
+    IdleReport, Layer, LidarCounters, LidarModel, LinkCounters, PoseInput, RunConfig, ScanRanges,
+    ScanReport, Tile, TileRect,
 };
 use ogm_core::{Pose, ScanBuf};
 
@@ -731,6 +731,10 @@ impl<S: Storage> State<'_, S> {
             report.sampler_ticks
         );
         self.send(link, &DeviceMsg::Scan(report));
+        // What the lidar saw, for a live view: 360 bytes, every scan.
+        let mut ranges = [0u8; wire::SCAN_RANGES_LEN];
+        wire::encode_ranges(beams, &mut ranges);
+        self.send(link, &DeviceMsg::Ranges(ScanRanges { seq, data: &ranges }));
         self.stream_tiles(link, false);
     }
 

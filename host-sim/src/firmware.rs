@@ -718,6 +718,7 @@ struct ScanGroup {
     tiles: Vec<OwnedTile>,
     sampler: Option<SamplerReport>,
     counters: Option<Counters>,
+    ranges: Option<crate::link::OwnedRanges>,
 }
 
 impl Groups {
@@ -759,6 +760,11 @@ impl Groups {
                 DeviceEvent::Done(d) => g.done = Some(*d),
                 DeviceEvent::Idle(r) => {
                     g.idles.insert(r.seq, *r);
+                }
+                DeviceEvent::Ranges(r) => {
+                    if let Some(s) = g.scans.get_mut(&r.seq) {
+                        s.ranges = Some(r.clone());
+                    }
                 }
             }
         }
@@ -883,6 +889,7 @@ fn compare(input: &[u8], lidar: &[u8], g: &Groups, c: &mut Checker) -> anyhow::R
             &fwg.sampler,
             &hg.sampler,
         );
+        c.eq(|| format!("scan {seq} ranges"), &fwg.ranges, &hg.ranges);
         // With the robot's two lines, how far each had been read when a turn finished is
         // timing (QEMU's scheduling of two sockets), not behaviour: what was counted of the
         // turns themselves must agree, the bytes and packets read so far need not (the final

@@ -265,6 +265,28 @@ pub struct OwnedTile {
     pub data: Vec<u8>,
 }
 
+/// A [`wire::ScanRanges`] with owned data.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OwnedRanges {
+    /// The scan's number.
+    pub seq: u32,
+    /// [`wire::SCAN_RANGES_LEN`] bytes (checked by [`OwnedRanges::bins`]).
+    pub data: Vec<u8>,
+}
+
+impl OwnedRanges {
+    /// The bins holding a reading: (direction in the robot's frame, reading); an error if the
+    /// data has the wrong length.
+    pub fn bins(&self) -> Result<Vec<(ogm_core::Angle, ogm_core::hal::Range)>, WireError> {
+        let r = wire::ScanRanges {
+            seq: self.seq,
+            data: &self.data,
+        };
+        let bins = r.bins()?.collect();
+        Ok(bins)
+    }
+}
+
 /// A decoded device message with owned data.
 #[derive(Clone, Debug, PartialEq)]
 pub enum DeviceEvent {
@@ -286,6 +308,8 @@ pub enum DeviceEvent {
     Done(Done),
     /// An idle period ended.
     Idle(wire::IdleReport),
+    /// A scan's ranges.
+    Ranges(OwnedRanges),
 }
 
 impl From<DeviceMsg<'_>> for DeviceEvent {
@@ -305,6 +329,10 @@ impl From<DeviceMsg<'_>> for DeviceEvent {
             DeviceMsg::Error(e) => DeviceEvent::Error(e),
             DeviceMsg::Done(d) => DeviceEvent::Done(d),
             DeviceMsg::Idle(r) => DeviceEvent::Idle(r),
+            DeviceMsg::Ranges(r) => DeviceEvent::Ranges(OwnedRanges {
+                seq: r.seq,
+                data: r.data.to_vec(),
+            }),
         }
     }
 }

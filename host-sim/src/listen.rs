@@ -211,6 +211,12 @@ pub struct ListenStats {
     pub tiles: u64,
     /// Tiles that did not fit the grid (dropped).
     pub bad_tiles: u64,
+    /// Scan ranges of the wrong size (dropped).
+    pub bad_ranges: u64,
+    /// Scans whose ranges were placed at their report's pose (recorded, shown live).
+    pub ranges_placed: u64,
+    /// Points of the latest of them.
+    pub scan_points: usize,
     /// `Error` messages from the robot.
     pub device_errors: u64,
     /// The last of them.
@@ -326,6 +332,9 @@ pub struct Listener {
     live: Option<crate::live::LiveServer>,
     live_dirty: bool,
     live_sent: Option<Instant>,
+    /// The last scan report's number and pose (x, y in m, heading in rad), where its ranges
+    /// are placed.
+    last_pose: Option<(u32, (f64, f64, f64))>,
 }
 
 impl Default for Listener {
@@ -352,6 +361,7 @@ impl Listener {
             live: None,
             live_dirty: false,
             live_sent: None,
+            last_pose: None,
         }
     }
 
@@ -631,6 +641,7 @@ impl Listener {
                 self.stats.robot = None;
                 self.stats.done = None;
                 self.stats.hello = Some(h.clone());
+                self.last_pose = None;
                 notices.push(Notice::Hello(h));
             }
             DeviceEvent::Configured(c) => {
@@ -653,6 +664,7 @@ impl Listener {
                     let m = crate::recording::pose_message(x, y, heading, t);
                     live.publish(crate::recording::Channel::Pose, t, &m);
                 }
+                self.last_pose = Some((r.seq, (x, y, heading)));
                 let expected = self.stats.last_seq.map_or(0, |s| s.wrapping_add(1));
                 if r.seq > expected {
                     let gap = Gap {
@@ -716,6 +728,39 @@ impl Listener {
                 notices.push(Notice::Done(d));
             }
             DeviceEvent::Idle(_) => {}
+            DeviceEvent::Ranges(r) => self.scan_ranges(&r, notices),
+        }
+    }
+
+    /// A scan's ranges: its points, placed at the pose of the report with the same `seq`, to
+    /// the recording and the live view (dropped if that report was missed).
+    fn scan_ranges(&mut self, r: &crate::link::OwnedRanges, notices: &mut Vec<Notice>) {
+        let bins = match r.bins() {
+            Ok(b) => b,
+            Err(e) => {
+                self.stats.bad_ranges += 1;
+                if self.stats.bad_ranges <= 3 {
+                    notices.push(Notice::Warning(format!("scan {}: {e}", r.seq)));
+                }
+                return;
+            }
+        };
+        let Some((_, (x, y, heading))) = self.last_pose.filter(|(seq, _)| *seq == r.seq) else {
+            return;
+        };
+        let points = crate::recording::scan_points(&bins, x, y, heading);
+        self.stats.ranges_placed += 1;
+        self.stats.scan_points = points.len();
+        let t = crate::recording::now_ns();
+        if let Some(rec) = self.recording.as_mut() {
+            if let Err(e) = rec.scan(&points, t) {
+                notices.push(Notice::Warning(format!("{e:#}; recording stopped")));
+                self.recording = None;
+            }
+        }
+        if let Some(live) = self.live.as_ref() {
+            let m = crate::recording::points_message(&points, t);
+            live.publish(crate::recording::Channel::Scan, t, &m);
         }
     }
 

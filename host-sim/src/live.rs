@@ -85,7 +85,7 @@ impl LiveServer {
         let addr = listener.local_addr()?;
         let shared = Arc::new(Shared {
             clients: Mutex::new(Vec::new()),
-            latest: Mutex::new([None, None, None]),
+            latest: Mutex::new(Default::default()),
             stop: AtomicBool::new(false),
             connections: AtomicU64::new(0),
             dropped: AtomicU64::new(0),
@@ -310,6 +310,7 @@ fn channel_of_id(id: u32) -> Option<Channel> {
         1 => Some(Channel::Marginals),
         2 => Some(Channel::LogOdds),
         3 => Some(Channel::Pose),
+        4 => Some(Channel::Scan),
         _ => None,
     }
 }

@@ -14,10 +14,13 @@
 //! | `/map/marginals` | `foxglove.Grid` | every save (`--save-every`, and at the end) |
 //! | `/map/log_odds` | `foxglove.Grid` | same |
 //! | `/robot/pose` | `foxglove.PoseInFrame` | every scan report |
+//! | `/robot/scan` | `foxglove.PointCloud` | every scan's ranges (`DeviceMsg::Ranges`) |
 //!
 //! A grid has one `INT8` field `occupancy`, the ROS convention: −1 unknown (no evidence), else
 //! p(occupied) in percent; `cell_size` and `pose` (the map's lower-left corner) come from the
-//! robot's settings. Frame `map`. Log and publish times are the host's clock when it arrived.
+//! robot's settings. The scan is the robot's 2° bins' closest hits as points (`x`, `y`, `z`:
+//! `FLOAT32`) in the map frame, placed at the pose of the scan they belong to. Frame `map`. Log
+//! and publish times are the host's clock when it arrived.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -30,6 +33,8 @@ use serde_json::json;
 
 /// `foxglove.Grid`'s numeric type code of an `int8` field.
 const INT8: u32 = 2;
+/// Foxglove's numeric type code of a `float32` field.
+const FLOAT32: u32 = 7;
 
 /// The JSON Schema of the `foxglove.Grid` fields written here.
 const GRID_SCHEMA: &str = r#"{"type":"object","properties":{
@@ -53,12 +58,25 @@ const POSE_SCHEMA: &str = r#"{"type":"object","properties":{
  "position":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},
  "orientation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}}}}"#;
 
+/// The JSON Schema of the `foxglove.PointCloud` fields written here.
+const POINTS_SCHEMA: &str = r#"{"type":"object","properties":{
+"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},
+"frame_id":{"type":"string"},
+"pose":{"type":"object","properties":{
+ "position":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},
+ "orientation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}},
+"point_stride":{"type":"integer"},
+"fields":{"type":"array","items":{"type":"object","properties":{"name":{"type":"string"},"offset":{"type":"integer"},"type":{"type":"integer"}}}},
+"data":{"type":"string","contentEncoding":"base64"}}}"#;
+
 /// Topic of the sampler's marginals.
 pub const MARGINALS_TOPIC: &str = "/map/marginals";
 /// Topic of the log-odds map.
 pub const LOG_ODDS_TOPIC: &str = "/map/log_odds";
 /// Topic of the robot's pose at each scan.
 pub const POSE_TOPIC: &str = "/robot/pose";
+/// Topic of the latest scan's points.
+pub const SCAN_TOPIC: &str = "/robot/scan";
 
 /// One channel of a session: topic, schema name and JSON Schema (messages are JSON). The MCAP
 /// recording and the live view (`crate::live`) offer the same three.
@@ -73,7 +91,7 @@ pub struct ChannelSpec {
 }
 
 /// The session's channels, in the order of [`Channel`].
-pub const CHANNELS: [ChannelSpec; 3] = [
+pub const CHANNELS: [ChannelSpec; 4] = [
     ChannelSpec {
         topic: MARGINALS_TOPIC,
         schema_name: "foxglove.Grid",
@@ -89,6 +107,11 @@ pub const CHANNELS: [ChannelSpec; 3] = [
         schema_name: "foxglove.PoseInFrame",
         schema: POSE_SCHEMA,
     },
+    ChannelSpec {
+        topic: SCAN_TOPIC,
+        schema_name: "foxglove.PointCloud",
+        schema: POINTS_SCHEMA,
+    },
 ];
 
 /// A channel of [`CHANNELS`].
@@ -100,6 +123,8 @@ pub enum Channel {
     LogOdds = 1,
     /// The robot's pose.
     Pose = 2,
+    /// The latest scan's points.
+    Scan = 3,
 }
 
 /// The `foxglove.Grid` message of one map layer at host time `t_ns`.
@@ -141,6 +166,51 @@ pub fn pose_message(x_m: f64, y_m: f64, heading: f64, t_ns: u64) -> serde_json::
     })
 }
 
+/// The `foxglove.PointCloud` message of a scan's points (x, y in m, map frame) at host time
+/// `t_ns`.
+pub fn points_message(points: &[(f64, f64)], t_ns: u64) -> serde_json::Value {
+    let mut bytes = Vec::with_capacity(points.len() * 12);
+    for &(x, y) in points {
+        for v in [x as f32, y as f32, 0.0f32] {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    json!({
+        "timestamp": stamp(t_ns),
+        "frame_id": "map",
+        "pose": {
+            "position": {"x": 0.0, "y": 0.0, "z": 0.0},
+            "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
+        },
+        "point_stride": 12,
+        "fields": [
+            {"name": "x", "offset": 0, "type": FLOAT32},
+            {"name": "y", "offset": 4, "type": FLOAT32},
+            {"name": "z", "offset": 8, "type": FLOAT32},
+        ],
+        "data": base64::engine::general_purpose::STANDARD.encode(&bytes),
+    })
+}
+
+/// The hits of a scan's ranges as points in the map frame, the robot at (`x_m`, `y_m`) facing
+/// `heading` (rad); bins with no return are left out.
+pub fn scan_points(
+    bins: &[(ogm_core::Angle, ogm_core::hal::Range)],
+    x_m: f64,
+    y_m: f64,
+    heading: f64,
+) -> Vec<(f64, f64)> {
+    bins.iter()
+        .filter_map(|&(a, r)| match r {
+            ogm_core::hal::Range::Hit(mm) => {
+                let (d, th) = (f64::from(mm) / 1000.0, heading + a.to_radians());
+                Some((x_m + d * th.cos(), y_m + d * th.sin()))
+            }
+            ogm_core::hal::Range::NoReturn => None,
+        })
+        .collect()
+}
+
 /// One map layer as the recording needs it.
 pub struct GridFrame<'a> {
     /// Columns, rows.
@@ -162,6 +232,7 @@ pub struct Recording {
     marginals: u16,
     log_odds: u16,
     pose: u16,
+    scan: u16,
     sequence: u32,
     /// Messages written.
     pub messages: u64,
@@ -177,7 +248,7 @@ impl Recording {
             .create(BufWriter::new(file))
             .with_context(|| format!("{}: cannot start an MCAP file", path.display()))?;
         let none = BTreeMap::new();
-        let mut ids = [0u16; 3];
+        let mut ids = [0u16; CHANNELS.len()];
         let mut schemas = BTreeMap::new();
         for (id, c) in ids.iter_mut().zip(CHANNELS) {
             let schema = match schemas.get(c.schema_name) {
@@ -190,13 +261,14 @@ impl Recording {
             };
             *id = writer.add_channel(schema, c.topic, "json", &none)?;
         }
-        let [marginals, log_odds, pose] = ids;
+        let [marginals, log_odds, pose, scan] = ids;
         Ok(Recording {
             writer,
             path: path.to_path_buf(),
             marginals,
             log_odds,
             pose,
+            scan,
             sequence: 0,
             messages: 0,
         })
@@ -239,6 +311,12 @@ impl Recording {
     pub fn pose(&mut self, x_m: f64, y_m: f64, heading: f64, t_ns: u64) -> anyhow::Result<()> {
         let channel = self.pose;
         self.write(channel, t_ns, &pose_message(x_m, y_m, heading, t_ns))
+    }
+
+    /// A scan's points (x, y in m, map frame) at host time `t_ns`.
+    pub fn scan(&mut self, points: &[(f64, f64)], t_ns: u64) -> anyhow::Result<()> {
+        let channel = self.scan;
+        self.write(channel, t_ns, &points_message(points, t_ns))
     }
 
     /// Writes the summary and index and closes the file (nothing is lost before this: a file

@@ -1,20 +1,22 @@
 //! `host-sim listen --mcap`: the session recorded for Foxglove, read back with the `mcap`
-//! crate: the three topics with their schemas, the maps with the robot's dimensions, cell size
-//! and origin (unknown cells −1, evidence in percent), and one pose per scan report. And
-//! `listen --live`: the same maps and poses from the live view's WebSocket server, as a
-//! Foxglove client sees them.
+//! crate: the four topics with their schemas, the maps with the robot's dimensions, cell size
+//! and origin (unknown cells −1, evidence in percent), one pose per scan report and each scan's
+//! points where its ranges put them. And `listen --live`: the same maps, poses and scans from
+//! the live view's WebSocket server, as a Foxglove client sees them.
 
 use std::process::Command;
 
 use base64::Engine;
 use host_sim::listen::{Listener, Notice};
-use ogm_core::wire::{DeviceMsg, Layer, ScanReport, Tile, WirePose};
+use ogm_core::hal::{Beam, Range};
+use ogm_core::wire::{self, DeviceMsg, Layer, ScanRanges, ScanReport, Tile, WirePose};
+use ogm_core::Angle;
 
 mod stream_fixture;
 use stream_fixture::{frame, half_free_tile, hello_and_config, EDGE, W};
 
-/// The fixture's session: settings, then two scan reports at `POSES`, each followed by the
-/// half-free log-odds tile at (1, 0); split after each tile.
+/// The fixture's session: settings, then two scan reports at `POSES`, each followed by its
+/// ranges ([`BEAMS`]) and the half-free log-odds tile at (1, 0); split after each tile.
 fn session_parts() -> Vec<Vec<u8>> {
     let mut parts = Vec::new();
     let mut s = hello_and_config();
@@ -30,6 +32,15 @@ fn session_parts() -> Vec<Vec<u8>> {
                     heading,
                 },
                 ..ScanReport::default()
+            }),
+            &mut s,
+        );
+        let mut ranges = [0u8; wire::SCAN_RANGES_LEN];
+        wire::encode_ranges(&beams(), &mut ranges);
+        frame(
+            &DeviceMsg::Ranges(ScanRanges {
+                seq: seq as u32,
+                data: &ranges,
             }),
             &mut s,
         );
@@ -53,6 +64,63 @@ fn session() -> Vec<u8> {
 
 /// The robot's pose at each scan report (mm, mm, heading in 2^16 per turn).
 const POSES: [(i32, i32, u16); 2] = [(250, -120, 0), (400, 80, 16_384)];
+
+/// The beams of every scan: (degrees, mm or no return). The 1.2 m hit at 91° is not the
+/// closest of its 2° bin, the no-return at 180° gives no point.
+const BEAMS: [(f64, Option<u32>); 4] = [
+    (0.5, Some(1000)),
+    (90.2, Some(2000)),
+    (91.0, Some(2500)),
+    (180.0, None),
+];
+
+fn beams() -> Vec<Beam> {
+    BEAMS
+        .iter()
+        .map(|&(deg, r)| Beam {
+            angle: Angle::from_degrees(deg),
+            range: r.map_or(Range::NoReturn, Range::Hit),
+        })
+        .collect()
+}
+
+/// Checks the `foxglove.PointCloud` messages read back: one per scan, the closest hit of each
+/// bin at its bin's centre (1°, 91°) from the scan's pose.
+fn check_scans(seen: &[serde_json::Value]) {
+    assert_eq!(seen.len(), POSES.len());
+    for (v, &(x_mm, y_mm, heading)) in seen.iter().zip(&POSES) {
+        assert_eq!(v["frame_id"], "map");
+        assert_eq!(v["point_stride"], 12);
+        let data = base64::engine::general_purpose::STANDARD
+            .decode(v["data"].as_str().unwrap())
+            .unwrap();
+        let pts: Vec<(f32, f32)> = data
+            .chunks_exact(12)
+            .map(|c| {
+                let f = |i: usize| f32::from_le_bytes(c[i..i + 4].try_into().unwrap());
+                (f(0), f(4))
+            })
+            .collect();
+        let yaw = f64::from(heading) * std::f64::consts::TAU / 65_536.0;
+        let want: Vec<(f64, f64)> = [(1.0f64, 1.0f64), (91.0, 2.0)]
+            .iter()
+            .map(|&(deg, d)| {
+                let th = yaw + deg.to_radians();
+                (
+                    f64::from(x_mm) / 1000.0 + d * th.cos(),
+                    f64::from(y_mm) / 1000.0 + d * th.sin(),
+                )
+            })
+            .collect();
+        assert_eq!(pts.len(), want.len(), "{pts:?}");
+        for (g, w) in pts.iter().zip(&want) {
+            assert!(
+                (f64::from(g.0) - w.0).abs() < 1e-3 && (f64::from(g.1) - w.1).abs() < 1e-3,
+                "{g:?} vs {w:?}"
+            );
+        }
+    }
+}
 
 /// Checks a `foxglove.Grid` message of the fixture's map (no marginal tile arrived: both layers
 /// show the log-odds, in percent; unobserved cells −1).
@@ -137,16 +205,19 @@ fn a_listened_session_reads_back_from_its_mcap_file() {
             ("/map/log_odds".into(), "foxglove.Grid".into()),
             ("/map/marginals".into(), "foxglove.Grid".into()),
             ("/robot/pose".into(), "foxglove.PoseInFrame".into()),
+            ("/robot/scan".into(), "foxglove.PointCloud".into()),
         ]
     );
     let mut grids = 0;
     let mut seen_poses = Vec::new();
+    let mut seen_scans = Vec::new();
     for m in mcap::MessageStream::new(&bytes).unwrap() {
         let m = m.unwrap();
         let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
         assert_eq!(m.channel.message_encoding, "json");
         match m.channel.topic.as_str() {
             "/robot/pose" => seen_poses.push(pose_of(&v)),
+            "/robot/scan" => seen_scans.push(v),
             topic => {
                 grids += 1;
                 check_grid(&v, topic);
@@ -156,6 +227,7 @@ fn a_listened_session_reads_back_from_its_mcap_file() {
     // The final save writes both layers once (the map did not exist when recording began).
     assert_eq!(grids, 2);
     check_poses(&seen_poses);
+    check_scans(&seen_scans);
 }
 
 /// A message a live-view client received: its topic and JSON.
@@ -217,22 +289,27 @@ fn a_live_view_serves_the_listened_maps_and_poses() {
         }
         got
     };
-    let count = |got: &[Received], grid: bool| {
-        got.iter()
-            .filter(|(t, _)| (t != "/robot/pose") == grid)
-            .count()
-    };
+    let count =
+        |got: &[Received], topic: &str| got.iter().filter(|(t, _)| t.starts_with(topic)).count();
     // The subscriptions are answered with each channel's latest message: both maps and the
-    // first scan's pose (published before the client subscribed)...
-    let first = read_until(&|g| count(g, true) == 2 && count(g, false) == 1);
-    // ...and the next scan's pose comes as it arrives.
+    // first scan's pose and points (published before the client subscribed)...
+    let first = read_until(&|g| {
+        count(g, "/map/") == 2 && count(g, "/robot/pose") == 1 && count(g, "/robot/scan") == 1
+    });
+    // ...and the next scan's pose and points come as they arrive.
     let notices = l.push(&parts[1]);
     assert!(notices.iter().all(|n| !matches!(n, Notice::Warning(_))));
-    let next = read_until(&|g| count(g, false) == 1);
+    let next = read_until(&|g| count(g, "/robot/pose") == 1 && count(g, "/robot/scan") == 1);
     let grids: Vec<Received> = first
         .iter()
-        .filter(|(t, _)| t != "/robot/pose")
+        .filter(|(t, _)| t.starts_with("/map/"))
         .cloned()
+        .collect();
+    let scans: Vec<serde_json::Value> = first
+        .iter()
+        .chain(&next)
+        .filter(|(t, _)| t == "/robot/scan")
+        .map(|(_, v)| v.clone())
         .collect();
     let poses: Vec<(f64, f64, f64)> = first
         .iter()
@@ -247,5 +324,6 @@ fn a_live_view_serves_the_listened_maps_and_poses() {
         check_grid(v, topic);
     }
     check_poses(&poses);
+    check_scans(&scans);
     assert_eq!(l.live().map(|s| s.connections()), Some(1));
 }

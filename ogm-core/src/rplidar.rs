@@ -627,9 +627,12 @@ impl RplidarParser {
     }
 
     fn consume(&mut self, n: usize) {
-        let n = n.min(self.len);
-        self.buf.copy_within(n..self.len, 0);
-        self.len -= n;
+        // `len ≤ BUF_LEN` always; the bound makes `copy_within` provably in range (no panic
+        // path, which also kept `core::fmt` in the firmware image).
+        let len = self.len.min(self.buf.len());
+        let n = n.min(len);
+        self.buf.copy_within(n..len, 0);
+        self.len = len - n;
     }
 
     fn skip(&mut self, n: usize) {

@@ -385,6 +385,9 @@ fn listener_on_a_pty_saves_the_host_replays_map() {
     assert_eq!(done.scans as usize, SCANS);
     assert_eq!((st.scans_seen, st.scans_missed), (SCANS as u64, 0));
     assert_eq!((st.bad_frames, st.garbage_bytes, st.bad_tiles), (0, 0, 0));
+    // Every scan's ranges placed at its pose for the live view; the last turn's points.
+    assert_eq!((st.ranges_placed, st.bad_ranges), (SCANS as u64, 0));
+    assert!(st.scan_points >= 45, "{} points", st.scan_points);
     assert_eq!(st.sent as usize, input.units.len(), "every line sent");
     assert_eq!(st.robot.map(|c| c.scans as usize), Some(SCANS));
     assert_eq!(st.config, Some(config));

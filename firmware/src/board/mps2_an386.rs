@@ -8,13 +8,12 @@
 //!   Under `qemu -icount shift=0,sleep=off` virtual time advances 1 ns per guest instruction, so
 //!   one tick is exactly 40 instructions (not real cycles: QEMU models no pipeline, no wait
 //!   states). DWT CYCCNT does not count in QEMU.
-//! * defmt goes out over semihosting (`defmt-semihosting`), the program ends with a semihosting
+//! * defmt goes out over semihosting stdout ([`log`]), the program ends with a semihosting
 //!   `SYS_EXIT` (QEMU exits with that status). Run QEMU with
 //!   `-semihosting-config enable=on,target=native`.
 
 use super::{Reg, RxRing};
 use core::sync::atomic::{AtomicBool, Ordering};
-use defmt_semihosting as _; // the global defmt logger
 use ogm_firmware::sizes::BoardSizes;
 
 /// Name logged at boot.
@@ -100,6 +99,101 @@ impl super::Board for Mps2An386 {
 /// Ends the program: semihosting `SYS_EXIT` with `code` (QEMU exits with status `code`; 0 = ok).
 pub fn exit(code: i32) -> ! {
     semihosting::process::exit(code)
+}
+
+// ---------------------------------------------------------------------------------------------
+// defmt over semihosting
+
+/// The global defmt logger: frames to the host over semihosting stdout, one frame at a time
+/// with interrupts off. What `defmt-semihosting` does, written here so that no byte goes
+/// through `semihosting`'s `write_all`: its range-checked slicing and panic message keep
+/// `core::fmt` (~2.3 KiB of flash) in the image.
+mod log {
+    use core::cell::UnsafeCell;
+    use core::sync::atomic::{AtomicBool, Ordering};
+    use semihosting::io::Write as _;
+
+    #[defmt::global_logger]
+    struct Logger;
+
+    /// The logger's state; only touched between `acquire` and `release`.
+    struct State {
+        taken: AtomicBool,
+        /// Interrupts were enabled when `acquire` disabled them.
+        interrupts_were_on: AtomicBool,
+        encoder: UnsafeCell<defmt::Encoder>,
+        out: UnsafeCell<Option<semihosting::io::Stdout>>,
+    }
+
+    // SAFETY: the cells are only accessed by the holder of `taken`, with interrupts disabled
+    // on this single-core part, so no two contexts ever access them at once.
+    unsafe impl Sync for State {}
+
+    static STATE: State = State {
+        taken: AtomicBool::new(false),
+        interrupts_were_on: AtomicBool::new(false),
+        encoder: UnsafeCell::new(defmt::Encoder::new()),
+        out: UnsafeCell::new(None),
+    };
+
+    /// Writes all of `bytes` to semihosting stdout; gives up on an error or a zero write (a
+    /// log frame lost, never a panic).
+    fn put(out: &mut Option<semihosting::io::Stdout>, mut bytes: &[u8]) {
+        let Some(h) = out else { return };
+        while !bytes.is_empty() {
+            match h.write(bytes) {
+                Ok(n) if n > 0 => match bytes.get(n..) {
+                    Some(rest) => bytes = rest,
+                    None => return,
+                },
+                _ => return,
+            }
+        }
+    }
+
+    // SAFETY (the trait's contract): defmt calls `write`/`flush`/`release` only between an
+    // `acquire` and its `release`, which is what the cells' accesses below rely on.
+    unsafe impl defmt::Logger for Logger {
+        fn acquire() {
+            let was_on = cortex_m::register::primask::read().is_active();
+            cortex_m::interrupt::disable();
+            if STATE.taken.swap(true, Ordering::Relaxed) {
+                panic!("defmt logger taken reentrantly");
+            }
+            STATE.interrupts_were_on.store(was_on, Ordering::Relaxed);
+            // SAFETY: `taken` is ours and interrupts are off: nothing else accesses the cells.
+            unsafe {
+                let out = &mut *STATE.out.get();
+                if out.is_none() {
+                    *out = semihosting::io::stdout().ok();
+                }
+                (*STATE.encoder.get()).start_frame(|b| put(out, b));
+            }
+        }
+
+        unsafe fn flush() {}
+
+        unsafe fn release() {
+            // SAFETY: called after `acquire` (the trait's contract): the cells are ours.
+            unsafe {
+                let out = &mut *STATE.out.get();
+                (*STATE.encoder.get()).end_frame(|b| put(out, b));
+            }
+            STATE.taken.store(false, Ordering::Relaxed);
+            if STATE.interrupts_were_on.load(Ordering::Relaxed) {
+                // SAFETY: restores the state `acquire` found; the frame is complete.
+                unsafe { cortex_m::interrupt::enable() };
+            }
+        }
+
+        unsafe fn write(bytes: &[u8]) {
+            // SAFETY: called after `acquire` (the trait's contract): the cells are ours.
+            unsafe {
+                let out = &mut *STATE.out.get();
+                (*STATE.encoder.get()).write(bytes, |b| put(out, b));
+            }
+        }
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
