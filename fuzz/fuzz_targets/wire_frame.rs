@@ -2,7 +2,8 @@
 //! (`HostMsg`, what the robot decodes) and as a robot → host frame (`DeviceMsg`), through the
 //! robot's demultiplexer (`ogm_core::link::LinkDemux`) and the host's stream decoder
 //! (`host_sim::link::StreamDecoder`) in input-chosen chunks. Invariants: nothing panics; a frame
-//! that decodes re-encodes into one that decodes to the same message; the demultiplexer's
+//! that decodes re-encodes into one that decodes to the same message (a scan's ranges into at
+//! most `SCAN_BINS` bins, or refused for their length); the demultiplexer's
 //! counters add up to the bytes it saw.
 #![no_main]
 
@@ -32,6 +33,13 @@ fuzz_target!(|data: &[u8]| {
         let f = wire::encode(&m, &mut out).expect("a decoded DeviceMsg re-encodes");
         let n = f.len() - 1;
         assert_eq!(wire::decode::<DeviceMsg>(&mut f[..n]), Ok(m));
+        // A scan's ranges: the bins of exactly SCAN_RANGES_LEN bytes, anything else refused.
+        if let DeviceMsg::Ranges(r) = m {
+            match r.bins() {
+                Ok(bins) => assert!(bins.count() <= wire::SCAN_BINS),
+                Err(_) => assert_ne!(r.data.len(), wire::SCAN_RANGES_LEN),
+            }
+        }
     }
     let mut c = bytes.to_vec();
     let _ = wire::cobs_decode_in_place(&mut c);
