@@ -418,7 +418,15 @@ mod tests {
         assert_eq!(adv["op"], "advertise");
         let chans = adv["channels"].as_array().unwrap();
         let topics: Vec<&str> = chans.iter().map(|c| c["topic"].as_str().unwrap()).collect();
-        assert_eq!(topics, ["/map/marginals", "/map/log_odds", "/robot/pose"]);
+        assert_eq!(
+            topics,
+            [
+                "/map/marginals",
+                "/map/log_odds",
+                "/robot/pose",
+                "/robot/scan"
+            ]
+        );
         assert!(chans
             .iter()
             .all(|c| c["encoding"] == "json" && c["schemaEncoding"] == "jsonschema"));
