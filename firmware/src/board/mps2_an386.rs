@@ -157,9 +157,11 @@ mod log {
         fn acquire() {
             let was_on = cortex_m::register::primask::read().is_active();
             cortex_m::interrupt::disable();
-            if STATE.taken.swap(true, Ordering::Relaxed) {
+            // Interrupts are off: a load and a store are enough (and thumbv6m has no swap).
+            if STATE.taken.load(Ordering::Relaxed) {
                 panic!("defmt logger taken reentrantly");
             }
+            STATE.taken.store(true, Ordering::Relaxed);
             STATE.interrupts_were_on.store(was_on, Ordering::Relaxed);
             // SAFETY: `taken` is ours and interrupts are off: nothing else accesses the cells.
             unsafe {
