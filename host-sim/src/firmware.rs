@@ -31,7 +31,7 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, bail, ensure, Context};
 use ogm_core::gibbs::Count;
 use ogm_core::session::{Owned, Session, Sizes};
-use ogm_core::wire::{Budget, Counters, Done, RunConfig, SamplerReport, ScanReport};
+use ogm_core::wire::{Budget, Counters, Done, LidarModel, RunConfig, SamplerReport, ScanReport};
 use ogm_core::ScanBuf;
 use ogm_firmware::app::MAX_BEAMS;
 use ogm_firmware::{App, Fed, Memory, Platform, Work};
@@ -1104,18 +1104,62 @@ struct LidarLine<'a> {
     schedule: &'a [(crate::robot::Line, std::ops::Range<usize>)],
     finish: &'a [u8],
     last_turn: u32,
+    /// The request the sensor waits for before its first byte (an RPLIDAR's `SCAN`; an LD06
+    /// streams on its own).
+    answers: Option<[u8; 2]>,
+}
+
+/// How long the simulated sensor waits for the request it answers (wall time).
+const REQUEST_WAIT: Duration = Duration::from_secs(30);
+
+/// Reads `line` until `request` arrived (or `REQUEST_WAIT` passed); every byte the firmware
+/// wrote to the sensor meanwhile goes to `heard`.
+fn await_request(
+    line: &mut UnixStream,
+    request: [u8; 2],
+    heard: &mut Vec<u8>,
+) -> std::io::Result<()> {
+    line.set_read_timeout(Some(Duration::from_millis(50)))?;
+    let t0 = Instant::now();
+    let mut buf = [0u8; 64];
+    while !heard.windows(2).any(|w| w == request) && t0.elapsed() < REQUEST_WAIT {
+        match line.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => heard.extend_from_slice(&buf[..n]),
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
+            Err(e) => return Err(e),
+        }
+    }
+    line.set_read_timeout(None)
+}
+
+/// What [`run_qemu`] returns.
+struct QemuRun {
+    /// The map stream (UART1).
+    stream: Vec<u8>,
+    /// QEMU's exit status (`None`: killed at the timeout).
+    status: Option<ExitStatus>,
+    /// Wall time, s.
+    secs: f64,
+    /// What the firmware wrote to the lidar (UART0) before the sensor's first byte.
+    heard: Vec<u8>,
 }
 
 /// Boots `elf` in QEMU with UART1 (the link) on a Unix socket, sends `input`, returns the
-/// stream bytes. With `lidar`, UART0 is a second socket that carries its bytes, written by
-/// their own thread at their own pace.
+/// stream bytes, the exit status, the wall time and what the firmware wrote to the lidar. With
+/// `lidar`, UART0 is a second socket that carries its bytes, written by their own thread at
+/// their own pace (after the request the sensor answers, if it waits for one).
 fn run_qemu(
     elf: &Path,
     input: &[u8],
     lidar: Option<LidarLine<'_>>,
     timeout: Duration,
     log: Option<&Path>,
-) -> anyhow::Result<(Vec<u8>, Option<ExitStatus>, f64)> {
+) -> anyhow::Result<QemuRun> {
     let root = repo_root();
     let dir = std::env::temp_dir().join(format!("ogm-fw-{}-{}", std::process::id(), rand_seed()));
     std::fs::create_dir_all(&dir)?;
@@ -1208,28 +1252,35 @@ fn run_qemu(
     let robot = lidar.map(|l| {
         let bytes = l.bytes.to_vec();
         let schedule = l.schedule.to_vec();
-        (bytes, schedule, l.finish.to_vec())
+        (bytes, schedule, l.finish.to_vec(), l.answers)
     });
-    let writer = std::thread::spawn(move || -> std::io::Result<Option<UnixStream>> {
+    type Written = (Option<UnixStream>, Vec<u8>);
+    let writer = std::thread::spawn(move || -> std::io::Result<Written> {
+        let mut heard = Vec::new();
         if ready_rx.recv().is_err() {
-            return Ok(lidar_stream); // the firmware never spoke; the reader reports it
+            return Ok((lidar_stream, heard)); // the firmware never spoke; the reader reports it
         }
         match (robot, lidar_stream) {
-            (Some((bytes, schedule, finish)), Some(mut w)) => {
+            (Some((bytes, schedule, finish, mut answers)), Some(mut w)) => {
                 for (line, r) in schedule {
                     match line {
                         crate::robot::Line::Link => writer.write_all(&data[r])?,
-                        crate::robot::Line::Lidar => w.write_all(&bytes[r])?,
+                        crate::robot::Line::Lidar => {
+                            if let Some(req) = answers.take() {
+                                await_request(&mut w, req, &mut heard)?;
+                            }
+                            w.write_all(&bytes[r])?
+                        }
                     }
                 }
                 if finish_rx.recv().is_ok() {
                     writer.write_all(&finish)?;
                 }
-                Ok(Some(w))
+                Ok((Some(w), heard))
             }
             (_, w) => {
                 writer.write_all(&data)?;
-                Ok(w)
+                Ok((w, heard))
             }
         }
     });
@@ -1307,9 +1358,17 @@ fn run_qemu(
     let secs = t0.elapsed().as_secs_f64();
     drop(ready);
     drop(finish_go);
-    let _ = writer.join();
+    let heard = match writer.join() {
+        Ok(Ok((_, heard))) => heard,
+        _ => Vec::new(),
+    };
     let _ = std::fs::remove_dir_all(&dir);
-    Ok((out, status, secs))
+    Ok(QemuRun {
+        stream: out,
+        status,
+        secs,
+        heard,
+    })
 }
 
 /// The messages of a stream captured from the board (bad frames skipped, counted in the
@@ -1619,7 +1678,12 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
             None => build_elf(&qemu_dir.join("host-sim-build.log"))?,
         };
         let log = (!args.verbose).then(|| qemu_dir.join("host-sim-firmware.log"));
-        let (stream, status, secs) = run_qemu(
+        let QemuRun {
+            stream,
+            status,
+            secs,
+            ..
+        } = run_qemu(
             &elf,
             &input.bytes,
             None,
@@ -1821,8 +1885,15 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         schedule: &input.schedule,
         finish: &input.finish,
         last_turn: input.turns.saturating_sub(1),
+        answers: matches!(config.lidar, LidarModel::Rplidar { .. })
+            .then_some(ogm_core::rplidar::REQ_SCAN),
     };
-    let (stream, status, secs) = run_qemu(
+    let QemuRun {
+        stream,
+        status,
+        secs,
+        heard,
+    } = run_qemu(
         &elf,
         &input.link,
         Some(line),
@@ -1849,6 +1920,18 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     if let Err(e) = compare(&link, &input.lidar, &groups, &mut checker) {
         checker.fail(format!("{e:#}"));
     }
+    // What an RPLIDAR must hear before it scans: STOP, then SCAN; an LD06 nothing.
+    let want: &[u8] = match config.lidar {
+        LidarModel::Rplidar { .. } => {
+            &[ogm_core::rplidar::REQ_STOP, ogm_core::rplidar::REQ_SCAN].concat()
+        }
+        LidarModel::Ld06 => &[],
+    };
+    checker.eq(
+        || "bytes the firmware sent the lidar".into(),
+        &heard.as_slice(),
+        &want,
+    );
     let r = robot_report(&config, &input, &link, &groups, &events);
     Ok(FirmwareReport {
         stream_bytes: ds.bytes,
