@@ -283,6 +283,21 @@ pub fn average_byte(m: u8, occupied: bool, shift: u8, u: u8) -> u8 {
     }
 }
 
+/// [`average_word`]'s byte masks: byte k of entry t is 0xFF iff bit k of t is set.
+static FLIP: [u32; 8] = build_flip();
+
+// Const-evaluated: an out-of-range index would fail compilation, not panic at run time.
+#[allow(clippy::indexing_slicing)]
+const fn build_flip() -> [u32; 8] {
+    let mut f = [0u32; 8];
+    let mut t = 0;
+    while t < 8 {
+        f[t] = ((t as u32 & 1) | (t as u32 & 2) << 7 | (t as u32 & 4) << 14) * 0xFF;
+        t += 1;
+    }
+    f
+}
+
 /// [`average_byte`] of three `u8` cells packed in bytes 0..3 of `m`, towards bits 0..3 of
 /// `bits`, with byte `k` of `dither` for cell `k`; byte 3 is unchanged. Branch-free: the bytes
 /// whose target is 255 are complemented so that every target is 0, the distance's quotient and
@@ -292,13 +307,15 @@ pub fn average_byte(m: u8, occupied: bool, shift: u8, u: u8) -> u8 {
 fn average_word(m: u32, bits: u32, shift: u8, dither: u32) -> u32 {
     const LANES: u32 = 0x0001_0101;
     let s = u32::from(shift.min(7));
-    // Bytes 0..3 = 0xFF where bit k of bits is set.
-    let t = bits & 7;
-    let flip = ((t & 1) | (t & 2) << 7 | (t & 4) << 14) * 0xFF;
+    // Bytes 0..3 = 0xFF where bit k of bits is set: one load (the bit spreading was six
+    // instructions a row on the M4).
+    let flip = FLIP.get((bits & 7) as usize).copied().unwrap_or(0);
     let d = m ^ flip;
     let low = ((1 << s) - 1) * LANES;
     let quotient = (d >> s) & ((0xFF >> s) * LANES);
-    let carry = (((d & low) + (dither & low)) >> s) & LANES;
+    // The sum is < 2^(s+1) per byte: its bit s is the carry. Masked with `!low` before the
+    // shift, not with LANES after it, so the averaging needs one constant less in a register.
+    let carry = (((d & low) + (dither & low)) & !low) >> s;
     // Per byte the step is ≤ d: no borrow between bytes.
     (d - (quotient + carry)) ^ flip
 }
@@ -549,7 +566,7 @@ fn weight_q16(d: u32) -> u32 {
 
 /// One update's step of the random-patch countdown (`p_randPatch`): random patches come every
 /// `1 + below(period)` updates (`period` 0: never). Whether this update is one; then the next
-/// `gap` is drawn from `rng`. The sampler's and the raster run's (which keeps `gap` in a local).
+/// `gap` is drawn from `rng` ([`next_gap`]; the raster run counts down in centres instead).
 #[inline]
 fn random_patch_step(period: u32, gap: &mut u32, rng: &mut Xoshiro128PlusPlus) -> bool {
     if period == 0 {
@@ -560,8 +577,14 @@ fn random_patch_step(period: u32, gap: &mut u32, rng: &mut Xoshiro128PlusPlus) -
     if *gap > 0 {
         return false;
     }
-    *gap = 1 + below(rng.next_u32(), period);
+    *gap = next_gap(period, rng);
     true
+}
+
+/// The gap to the next random patch, drawn at a random patch (`period` > 0).
+#[inline]
+fn next_gap(period: u32, rng: &mut Xoshiro128PlusPlus) -> u32 {
+    1 + below(rng.next_u32(), period)
 }
 
 /// Uniform integer in `0..n` from a 32-bit random number (Lemire's multiply-shift).
@@ -1390,7 +1413,8 @@ where
     /// the robot: no candidate copies, no ray work). The same distribution as the general path:
     /// candidates are the top-k of `configs` plus, with [`SamplerConfig::data_candidate`], the
     /// evidence's own configuration at the floor log-prior; weights are log-prior + evidence.
-    /// Returns the new configuration (and updates the estimates).
+    /// Returns the new configuration (and updates the estimates), and whether it was the only
+    /// candidate (the caller counts those in [`SamplerStats::single_candidate`]).
     #[allow(clippy::too_many_arguments)]
     fn evidence_update(
         &mut self,
@@ -1400,7 +1424,7 @@ where
         (known, occupied): (u16, u16),
         configs: &'static [u16],
         log_priors: &'static [i16],
-    ) -> u16 {
+    ) -> (u16, bool) {
         let k = usize::from(self.config.max_candidates)
             .min(MAX_CANDIDATES)
             .min(configs.len())
@@ -1416,9 +1440,8 @@ where
         let d = (current & !known) | occupied;
         let first = configs.first().copied().unwrap_or(current);
         if k <= 1 && (!data_candidate || (k == 1 && first == d)) {
-            self.stats.single_candidate += 1;
             self.average_config(centre, first);
-            return first;
+            return (first, true);
         }
         let floor = i32::from(self.config.floor_log_prior);
         // The patch's log-odds, read only now that weights are needed, and only if a cell has
@@ -1492,7 +1515,7 @@ where
         } else {
             self.average_config(centre, new);
         }
-        new
+        (new, false)
     }
 
     /// The candidates of the patch at `centre` (the prior's top-k, plus the evidence's own

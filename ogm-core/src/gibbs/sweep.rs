@@ -141,8 +141,9 @@ where
         }
     }
 
-    /// The evidence bits (log-odds ≠ 0, > 0) of row `y`, columns `x − 1 ..= x + span`.
-    #[inline]
+    /// The evidence bits (log-odds ≠ 0, > 0) of row `y`, columns `x − 1 ..= x + span`. Not
+    /// inlined: once per segment, and its unrolled loop was in the firmware four times.
+    #[inline(never)]
     fn evidence_row(&self, map: &[LogOdds], x: i32, y: i32, span: i32) -> (u32, u32) {
         let width = usize::from(self.geometry.width());
         // In the map (the 2-cell margin), so a slice that is not (only a broken tiling) reads as
@@ -180,6 +181,24 @@ where
         }
     }
 
+    /// A raster run's random patch at `centre`: the gap to the next one (drawn first, as
+    /// [`super::random_patch_step`] does), then the patch; returns both. Not inlined: about one
+    /// update in a thousand.
+    #[inline(never)]
+    fn raster_random<S, R>(
+        &mut self,
+        store: &mut RayStore<S, R>,
+        centre: CellCoord,
+        current: u16,
+    ) -> (u16, u32)
+    where
+        S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
+        R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
+    {
+        let gap = super::next_gap(self.rand_period, &mut self.rng);
+        (self.random_patch(store, centre, current), gap)
+    }
+
     /// Moves `n` centres on in the tile's raster order, within the current segment or just past
     /// its end (then the next update reads a new one, on the next row past the tile's last
     /// column).
@@ -215,21 +234,40 @@ where
         let mut rows = self.raster.rows;
         let (known_rows, occupied_rows) = (self.raster.known, self.raster.occupied);
         let (x_start, y) = (self.raster.x_start, self.raster.y);
-        // `random_patch_due`'s countdown as a local for the run.
-        let (period, mut gap) = (self.rand_period, self.rand_gap);
+        let (x_first, x_end) = (self.raster.x, self.raster.x + n as i32);
+        // `random_patch_step`'s countdown as the centre of the next random patch (one compare
+        // per update); `drawn` keeps the last gap drawn and where, for the countdown after the
+        // run.
+        let period = self.rand_period;
+        let to_centre = |x: i32, gap: u32| x.saturating_add(i32::try_from(gap).unwrap_or(i32::MAX));
+        let mut rand_x = if period == 0 {
+            i32::MAX
+        } else {
+            to_centre(x_first, self.rand_gap.saturating_sub(1))
+        };
+        let mut drawn: Option<(i32, u32)> = None;
+        // Updates that took the general path or were random, and multi-candidate evidence
+        // updates: the rest of the run were single-candidate evidence updates (counted once,
+        // after the run, instead of a 64-bit increment each).
+        let (mut other, mut multi) = (0u32, 0u32);
         // Whether an evidence update changed its patch: the sample's rows are then written
         // back from `rows` once, after the run (nothing reads the sample during it).
         let mut dirty = false;
-        for x in self.raster.x..self.raster.x + n as i32 {
+        for x in x_first..x_end {
             let centre = CellCoord { x, y };
             // The centre's offset in the segment (0 ≤ s < span ≤ 27).
             let sh = (x - x_start) as u32 & 31;
-            let [r0, r1, r2, r3, r4] = rows.map(|r| (r >> sh) & 0x1F);
-            let window = r0 | r1 << 5 | r2 << 10 | r3 << 15 | r4 << 20;
-            let (current, border) = (
-                crate::patch::patch_of(window),
-                crate::patch::border_of(window),
-            );
+            let [r0, r1, r2, r3, r4] = rows.map(|r| r >> sh);
+            // The patch and its border ([`crate::patch`]'s layouts) straight from the rows.
+            let current = ((r1 >> 1 & 7) | (r2 >> 1 & 7) << 3 | (r3 >> 1 & 7) << 6) as u16;
+            let border = ((r0 & 0x1F)
+                | (r4 & 0x1F) << 5
+                | (r1 & 1) << 10
+                | (r2 & 1) << 11
+                | (r3 & 1) << 12
+                | (r1 >> 4 & 1) << 13
+                | (r2 >> 4 & 1) << 14
+                | (r3 >> 4 & 1) << 15) as u16;
             let [k0, k1, k2] = known_rows.map(|k| (k >> sh) & 7);
             let [o0, o1, o2] = occupied_rows.map(|o| (o >> sh) & 7);
             let (known, occupied) = (k0 | k1 << 3 | k2 << 6, o0 | o1 << 3 | o2 << 6);
@@ -243,11 +281,18 @@ where
                 },
                 (known, occupied)
             );
-            let new = if super::random_patch_step(period, &mut gap, &mut self.rng) {
-                self.random_patch(store, centre, current)
+            let new = if x == rand_x {
+                let (new, gap) = self.raster_random(store, centre, current);
+                (rand_x, drawn) = (to_centre(x, gap), Some((x, gap)));
+                other += 1;
+                new
             } else if let Some((configs, log_priors)) = self.prior.table(border) {
                 let masks = (known as u16, occupied as u16);
-                let new = self.evidence_update(map, centre, current, masks, configs, log_priors);
+                let (new, single) =
+                    self.evidence_update(map, centre, current, masks, configs, log_priors);
+                if !single {
+                    multi += 1;
+                }
                 if new != current {
                     self.stats.changed += 1;
                     dirty = true;
@@ -259,6 +304,7 @@ where
                 new
             } else {
                 // An unseen border: the prior's back-off, through the general path.
+                other += 1;
                 self.update_at(store, map, centre, current, border)
             };
             if new != current {
@@ -274,6 +320,13 @@ where
             self.raster_store([r1, r2, r3]);
         }
         self.raster.rows = rows;
-        self.rand_gap = gap;
+        if period != 0 {
+            // No random patch came after the last one drawn (or, with none drawn, in the run).
+            self.rand_gap = match drawn {
+                Some((x, gap)) => gap.saturating_sub((x_end - 1 - x) as u32),
+                None => self.rand_gap.saturating_sub(n),
+            };
+        }
+        self.stats.single_candidate += u64::from(n.saturating_sub(other).saturating_sub(multi));
     }
 }
