@@ -132,6 +132,19 @@ pub trait Count: Copy + Default {
             );
         }
     }
+    /// [`Count::average_patch3`] with the shift's derived masks ([`AverageShift`], computed
+    /// once per tile visit instead of once per update).
+    #[inline]
+    fn average_patch3_at(
+        counts: &mut [Self],
+        start: usize,
+        width: usize,
+        config: u32,
+        shift: &AverageShift,
+        dither: u32,
+    ) {
+        Self::average_patch3(counts, start, width, config, shift.shift, dither);
+    }
     /// The value of probability `p_q16 / 2^16` (clamped to 1), rounded to nearest.
     #[inline]
     fn from_probability_q16(p_q16: u32) -> Self {
@@ -216,11 +229,9 @@ impl Count for u8 {
         };
         let mut bytes = [0u8; 4];
         bytes.copy_from_slice(w4);
-        w4.copy_from_slice(
-            &average_word(u32::from_le_bytes(bytes), bits, shift, dither).to_le_bytes(),
-        );
+        let m = u32::from_le_bytes(bytes);
+        w4.copy_from_slice(&average_word(m, bits, &AverageShift::new(shift), dither).to_le_bytes());
     }
-    /// The robot's hot path: one bounds check for the patch, three unaligned word updates.
     #[inline]
     fn average_patch3(
         counts: &mut [Self],
@@ -230,18 +241,28 @@ impl Count for u8 {
         shift: u8,
         dither: u32,
     ) {
+        Self::average_patch3_at(
+            counts,
+            start,
+            width,
+            config,
+            &AverageShift::new(shift),
+            dither,
+        );
+    }
+    /// The robot's hot path: one bounds check for the patch, three unaligned word updates.
+    #[inline]
+    fn average_patch3_at(
+        counts: &mut [Self],
+        start: usize,
+        width: usize,
+        config: u32,
+        shift: &AverageShift,
+        dither: u32,
+    ) {
         let Some(area) = counts.get_mut(start..start + 2 * width + 4) else {
             // At the map's last cell there is no byte after the patch: the general path.
-            for r in 0..3 {
-                Self::average_row(
-                    counts,
-                    start + r * width,
-                    3,
-                    config >> (3 * r),
-                    shift,
-                    row_dither(dither, r),
-                );
-            }
+            average_rows_u8(counts, start, width, config, shift.shift, dither);
             return;
         };
         for r in 0..3 {
@@ -254,6 +275,30 @@ impl Count for u8 {
             let d = row_dither(dither, r);
             *w4 = average_word(u32::from_le_bytes(*w4), config >> (3 * r), shift, d).to_le_bytes();
         }
+    }
+}
+
+/// [`Count::average_patch3`] for `u8` a row at a time: where the patch has no byte after it.
+/// Out of line and cold, so that the hot path's registers are not planned around it.
+#[cold]
+#[inline(never)]
+fn average_rows_u8(
+    counts: &mut [u8],
+    start: usize,
+    width: usize,
+    config: u32,
+    shift: u8,
+    dither: u32,
+) {
+    for r in 0..3 {
+        u8::average_row(
+            counts,
+            start + r * width,
+            3,
+            config >> (3 * r),
+            shift,
+            row_dither(dither, r),
+        );
     }
 }
 
@@ -283,6 +328,37 @@ pub fn average_byte(m: u8, occupied: bool, shift: u8, u: u8) -> u8 {
     }
 }
 
+/// An averaging shift and what [`average_word`] derives from it: `s = min(shift, 7)`, the
+/// remainder mask `2^s − 1` and the quotient mask `0xFF >> s` in bytes 0..3.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct AverageShift {
+    shift: u8,
+    s: u32,
+    low: u32,
+    quotient: u32,
+}
+
+impl AverageShift {
+    /// The masks of `shift`. Not inlined: once per tile visit.
+    #[inline(never)]
+    pub fn new(shift: u8) -> Self {
+        const LANES: u32 = 0x0001_0101;
+        let s = u32::from(shift.min(7));
+        AverageShift {
+            shift,
+            s,
+            low: ((1 << s) - 1) * LANES,
+            quotient: (0xFF >> s) * LANES,
+        }
+    }
+
+    /// The shift.
+    #[inline]
+    pub fn shift(&self) -> u8 {
+        self.shift
+    }
+}
+
 /// [`average_word`]'s byte masks: byte k of entry t is 0xFF iff bit k of t is set.
 static FLIP: [u32; 8] = build_flip();
 
@@ -304,15 +380,13 @@ const fn build_flip() -> [u32; 8] {
 /// the dithered remainder's carry are taken bytewise (neither crosses a byte: the remainder
 /// and the dither are < 2^s ≤ 128 each), subtracted, and complemented back.
 #[inline]
-fn average_word(m: u32, bits: u32, shift: u8, dither: u32) -> u32 {
-    const LANES: u32 = 0x0001_0101;
-    let s = u32::from(shift.min(7));
+fn average_word(m: u32, bits: u32, shift: &AverageShift, dither: u32) -> u32 {
+    let (s, low) = (shift.s, shift.low);
     // Bytes 0..3 = 0xFF where bit k of bits is set: one load (the bit spreading was six
     // instructions a row on the M4).
     let flip = FLIP.get((bits & 7) as usize).copied().unwrap_or(0);
     let d = m ^ flip;
-    let low = ((1 << s) - 1) * LANES;
-    let quotient = (d >> s) & ((0xFF >> s) * LANES);
+    let quotient = (d >> s) & shift.quotient;
     // The sum is < 2^(s+1) per byte: its bit s is the carry. Masked with `!low` before the
     // shift, not with LANES after it, so the averaging needs one constant less in a register.
     let carry = (((d & low) + (dither & low)) & !low) >> s;
@@ -516,7 +590,7 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     /// (empty when `lo > hi`; emptied whenever a visit takes a mark).
     hot_span: (usize, usize),
     /// The estimate's averaging shift on this tile visit ([`Estimator::shift_at`]).
-    visit_shift: u8,
+    visit_shift: AverageShift,
     /// The evidence update's candidate weights (only the entries an update wrote are read).
     scratch: [u32; MAX_CANDIDATES + 1],
     /// Evidence gains in effect (Q8), occupied and free: the configured ones, scaled for the
@@ -726,7 +800,7 @@ where
             tiles_y,
             hot: HotTiles::new(tiles_x, tiles_y),
             hot_span: (1, 0),
-            visit_shift: config.estimator.shift_at(0),
+            visit_shift: AverageShift::new(config.estimator.shift_at(0)),
             scratch: [0; MAX_CANDIDATES + 1],
             ev_gain: 0,
             ev_free_gain: 0,
@@ -1112,10 +1186,11 @@ where
                 below(self.rng.next_u32(), self.tiles_y) as i32,
             ),
         };
-        self.visit_shift = self
-            .config
-            .estimator
-            .shift_at(self.hot.visit_age(tx as u32, ty as u32));
+        self.visit_shift = AverageShift::new(
+            self.config
+                .estimator
+                .shift_at(self.hot.visit_age(tx as u32, ty as u32)),
+        );
         let x0 = self.cx0 + tx * t;
         let y0 = self.cy0 + ty * t;
         let (x1, y1) = ((x0 + t - 1).min(self.cx1), (y0 + t - 1).min(self.cy1));
@@ -1621,7 +1696,7 @@ where
             }
         }
         let tot = tot.max(1);
-        let shift = self.visit_shift;
+        let shift = self.visit_shift.shift;
         self.for_patch_counts(centre, |bit, c| {
             let o = occ.get(bit as usize).copied().unwrap_or(0);
             *c = c.ema((o << 16) / tot, shift);
@@ -1634,7 +1709,7 @@ where
         if self.config.estimator == Estimator::Counts {
             return;
         }
-        let shift = self.visit_shift;
+        let shift = &self.visit_shift;
         // xorshift32 (Marsaglia 2003): full period over the non-zero words.
         let mut dither = self.dither;
         dither ^= dither << 13;
@@ -1648,7 +1723,7 @@ where
         if size == 3 {
             // Patch centres keep the prior's margin from the edge: the patch is in the map.
             let start = (centre.y - 1) as usize * width + (centre.x - 1) as usize;
-            N::average_patch3(counts, start, width, u32::from(config), shift, dither);
+            N::average_patch3_at(counts, start, width, u32::from(config), shift, dither);
             return;
         }
         for (r, dy) in (-h..=h).enumerate() {
@@ -1660,7 +1735,7 @@ where
                 start,
                 size as usize,
                 bits,
-                shift,
+                shift.shift,
                 row_dither(dither, r),
             );
         }
