@@ -110,26 +110,67 @@ impl PatchTerms {
         occ_q8: i32,
         free_q8: i32,
     ) -> Self {
-        let mut t = [[0i32; 8]; 3];
+        let l = Self::cells(map, width, centre);
+        // |l| ≤ 2^15 and gains ≤ 2^16: each term fits an i32, nine of them too.
+        let v = |i: usize| {
+            let l = i32::from(l.get(i).copied().unwrap_or(0));
+            (l * if l > 0 { occ_q8 } else { free_q8 }) >> 8
+        };
+        let row = |r: usize| {
+            let (a, b, c) = (v(3 * r), v(3 * r + 1), v(3 * r + 2));
+            [0, a, b, a + b, c, a + c, b + c, a + b + c]
+        };
+        PatchTerms([row(0), row(1), row(2)])
+    }
+
+    /// The log-odds of the patch's cells ([`crate::patch`] bit order), 0 in rows not wholly in
+    /// the map (they contribute nothing).
+    #[inline]
+    fn cells(map: &[LogOdds], width: usize, centre: CellCoord) -> [i16; 9] {
         let x0 = centre.x - 1;
-        for (r, row) in t.iter_mut().enumerate() {
+        // The usual case, the whole patch in the map: one bounds check for its three rows.
+        if x0 >= 0 && centre.y >= 1 {
+            let start = (centre.y - 1) as usize * width + x0 as usize;
+            if let Some(area) = map.get(start..start + 2 * width + 3) {
+                let at = |i: usize| area.get(i).map_or(0, |l| l.0);
+                let (w1, w2) = (width, 2 * width);
+                return [
+                    at(0),
+                    at(1),
+                    at(2),
+                    at(w1),
+                    at(w1 + 1),
+                    at(w1 + 2),
+                    at(w2),
+                    at(w2 + 1),
+                    at(w2 + 2),
+                ];
+            }
+        }
+        Self::cells_by_rows(map, width, centre)
+    }
+
+    /// [`PatchTerms::cells`] a row at a time, each only if it is wholly in the map. Out of line
+    /// and cold: patch centres keep their margin, so only a map shorter than its geometry gets
+    /// here.
+    #[cold]
+    #[inline(never)]
+    fn cells_by_rows(map: &[LogOdds], width: usize, centre: CellCoord) -> [i16; 9] {
+        let mut l = [0i16; 9];
+        let x0 = centre.x - 1;
+        for (r, out) in l.chunks_exact_mut(3).enumerate() {
             let y = centre.y - 1 + r as i32;
             if y < 0 || x0 < 0 {
                 continue;
             }
             let start = y as usize * width + x0 as usize;
-            let Some(&[a, b, c]) = map.get(start..start + 3) else {
-                continue;
-            };
-            // |l| ≤ 2^15 and gains ≤ 2^12: each term fits an i32, nine of them too.
-            let v = |l: LogOdds| {
-                let l = i32::from(l.0);
-                (l * if l > 0 { occ_q8 } else { free_q8 }) >> 8
-            };
-            let (a, b, c) = (v(a), v(b), v(c));
-            *row = [0, a, b, a + b, c, a + c, b + c, a + b + c];
+            if let Some(row) = map.get(start..start + 3) {
+                for (o, c) in out.iter_mut().zip(row) {
+                    *o = c.0;
+                }
+            }
         }
-        PatchTerms(t)
+        l
     }
 
     /// The evidence term of `config` ([`crate::patch`] bit order).
@@ -287,6 +328,23 @@ mod tests {
                 assert_eq!(t.of(config), e.of(config, occ, free), "{config:09b}");
             }
         }
+    }
+
+    #[test]
+    fn patch_terms_skip_rows_outside_the_map() {
+        // 4 × 3 map: the patch at (2, 2) has its top row past the end, the one at (0, 1) its
+        // left column outside (no row is whole).
+        let map: Vec<LogOdds> = (0..12).map(|i| LogOdds(100 * i as i16 - 500)).collect();
+        let t = PatchTerms::new(&map, 4, CellCoord { x: 2, y: 2 }, 300, 200);
+        let v = |l: i32| (l * if l > 0 { 300 } else { 200 }) >> 8;
+        let l = |x: usize, y: usize| i32::from(map[y * 4 + x].0);
+        let want = v(l(1, 1)) + v(l(3, 1)) + v(l(2, 2));
+        assert_eq!(t.of(0b111_010_101), want);
+        // One cell shorter, the middle row is not whole either.
+        let short = PatchTerms::new(&map[..11], 4, CellCoord { x: 2, y: 2 }, 300, 200);
+        assert_eq!(short.of(0b111_010_101), v(l(1, 1)) + v(l(3, 1)));
+        let left = PatchTerms::new(&map, 4, CellCoord { x: 0, y: 1 }, 300, 200);
+        assert_eq!(left, PatchTerms::default());
     }
 
     #[test]

@@ -1558,11 +1558,13 @@ where
             }
             None => k,
         };
-        // `weights_q16`'s loop, in place.
+        // `weights_q16`'s loop, in place, without its saturation: a log-weight is an i16
+        // log-prior plus nine cells' |log-odds| ≤ 2^15 times a gain ≤ 2^16 (Q8), so `best − w`
+        // is below 2^29, and the sum of at most 17 weights ≤ 2^16 is below 2^21.
         let mut total = 0u32;
         for qi in q.iter_mut().take(n) {
-            *qi = weight_q16(best.saturating_sub(*qi as i32).unsigned_abs());
-            total = total.saturating_add(*qi);
+            *qi = weight_q16(best.wrapping_sub(*qi as i32) as u32);
+            total = total.wrapping_add(*qi);
         }
         let config_of = |j: usize| configs.get(j).copied().or(extra).unwrap_or(current);
         let mut r = below(self.rng.next_u32(), total.max(1));
