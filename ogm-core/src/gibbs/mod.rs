@@ -597,6 +597,9 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     /// hybrid term.
     ev_gain: i32,
     ev_free_gain: i32,
+    /// Candidates an evidence update considers: [`SamplerConfig::max_candidates`], at most
+    /// [`MAX_CANDIDATES`] (clamped once here, not on every update).
+    ev_k: u8,
     _count: core::marker::PhantomData<N>,
 }
 
@@ -804,6 +807,7 @@ where
             scratch: [0; MAX_CANDIDATES + 1],
             ev_gain: 0,
             ev_free_gain: 0,
+            ev_k: config.max_candidates.min(MAX_CANDIDATES as u8),
             _count: core::marker::PhantomData,
         })
     }
@@ -1500,8 +1504,7 @@ where
         configs: &'static [u16],
         log_priors: &'static [i16],
     ) -> (u16, bool) {
-        let k = usize::from(self.config.max_candidates)
-            .min(MAX_CANDIDATES)
+        let k = usize::from(self.ev_k)
             .min(configs.len())
             .min(log_priors.len());
         let (configs, log_priors) = (

@@ -5,8 +5,8 @@
 //! (a systematic-scan Gibbs sampler: every update is still an exact draw from Eq. 1, only the
 //! order is fixed, which leaves the posterior invariant). Consecutive patches then share all but
 //! one column of their 5 × 5 window and 3 × 3 evidence, so the sweep reads a run of up to 27
-//! centres of a row at once — five sample rows and three rows of evidence bits, as words — and
-//! each update shifts its window and masks out of them: no memory reads for the window, and no
+//! centres of a row at once — five sample rows as words, and each centre's evidence masks — and
+//! each update shifts its window out of the rows and loads its masks: a few memory reads, and no
 //! random numbers for the placement. Unseen borders (a few per cent) take the general path.
 
 use super::{Count, DataTerm, Gibbs, LocalRay, PatchPrior};
@@ -17,8 +17,9 @@ use crate::ray_store::{RayStore, StoredRay, StoredScan};
 /// Where the sweep is, and what it knows about the windows of a run of centres in its row.
 ///
 /// A run ("segment") of up to [`MAX_SPAN`] consecutive centres is read once: five sample rows
-/// and three rows of evidence bits as words, so that each update only shifts its 5 × 5 window
-/// and 3 × 3 masks out of registers. A change of the patch writes its bits back into the rows.
+/// as words and the 3 × 3 evidence masks of each centre, so that each update only shifts its
+/// 5 × 5 window out of the rows and loads its masks. A change of the patch writes its bits back
+/// into the rows.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct Raster {
     /// Current patch centre.
@@ -35,9 +36,21 @@ pub(crate) struct Raster {
     span: i32,
     /// Sample rows y − 2 + r; bit k is column `x_start − 2 + k`.
     rows: [u32; 5],
-    /// Evidence rows y − 1 + r (log-odds ≠ 0, > 0); bit k is column `x_start − 1 + k`.
-    known: [u32; 3],
-    occupied: [u32; 3],
+    /// The evidence masks of centre `x_start + s`, `known | occupied << 16` (log-odds ≠ 0, > 0;
+    /// [`crate::patch`]'s config layout): built once per segment, so that an update loads them
+    /// instead of shifting six rows (and the run keeps six words fewer in registers).
+    masks: [u32; 32],
+}
+
+impl Raster {
+    /// The masks one row up: rows 1 and 2 move down, `(known, occupied)` is the new top row.
+    #[inline(never)]
+    fn masks_up(&mut self, known: u32, occupied: u32) {
+        for (s, m) in self.masks.iter_mut().enumerate().take(self.span as usize) {
+            let s = s as u32;
+            *m = (*m >> 3 & 0x003F_003F) | ((known >> s) & 7) << 6 | ((occupied >> s) & 7) << 22;
+        }
+    }
 }
 
 /// Most centres per segment: a sample row then spans `MAX_SPAN + 4` ≤ 31 bits.
@@ -99,8 +112,8 @@ where
     /// Reads the segment that starts at the current centre: up to [`MAX_SPAN`] centres, to the
     /// tile's last column. Right after the same columns one row up (the next row of a tile no
     /// wider than a segment) it keeps the four sample rows and two evidence rows it shares with
-    /// them and reads one of each: the rows a segment's updates changed are its locals, kept
-    /// current, and the evidence does not change within a [`Gibbs::step`].
+    /// them and reads one of each: the rows a segment's updates changed are kept current, and
+    /// the evidence does not change within a [`Gibbs::step`].
     fn raster_load(&mut self, map: &[LogOdds]) {
         let (x, y) = (self.raster.x, self.raster.y);
         let span = (self.tile.2 - x + 1).clamp(1, MAX_SPAN);
@@ -110,8 +123,7 @@ where
             let [_, r1, r2, r3, r4] = self.raster.rows;
             self.raster.rows = [r1, r2, r3, r4, self.sample_row(x, y + 2, span)];
             let (k, o) = self.evidence_row(map, x, y + 1, span);
-            let ([_, k1, k2], [_, o1, o2]) = (self.raster.known, self.raster.occupied);
-            (self.raster.known, self.raster.occupied) = ([k1, k2, k], [o1, o2, o]);
+            self.raster.masks_up(k, o);
             self.raster.valid = true;
             return;
         }
@@ -120,12 +132,12 @@ where
             *row = self.sample_row(x, y - 2 + r as i32, span);
         }
         self.raster.rows = rows;
-        let (mut known, mut occupied) = ([0u32; 3], [0u32; 3]);
-        for (r, (k, o)) in known.iter_mut().zip(occupied.iter_mut()).enumerate() {
-            (*k, *o) = self.evidence_row(map, x, y - 1 + r as i32, span);
-        }
-        (self.raster.known, self.raster.occupied) = (known, occupied);
         (self.raster.x_start, self.raster.span) = (x, span);
+        // Three rows up from whatever the masks held: only the three rows remain.
+        for y in y - 1..=y + 1 {
+            let (k, o) = self.evidence_row(map, x, y, span);
+            self.raster.masks_up(k, o);
+        }
         self.raster.valid = true;
     }
 
@@ -221,9 +233,9 @@ where
     }
 
     /// `n` updates at consecutive centres of the loaded segment, from the current one (which the
-    /// caller advances past afterwards). The segment's rows are locals for the run: each update
-    /// shifts its window and masks out of them, and writes a changed patch back into them (and,
-    /// through [`Gibbs::apply`], into the sample). Not inlined: one copy of the hot loop (inlined
+    /// caller advances past afterwards). Each update shifts its window out of the segment's
+    /// rows, loads its masks, and writes a changed patch back into the rows (and, after the run,
+    /// [`Gibbs::raster_store`], into the sample). Not inlined: one copy of the hot loop (inlined
     /// into `step` it was duplicated, +3.6 KiB of flash).
     #[inline(never)]
     fn raster_run<S, R>(&mut self, store: &mut RayStore<S, R>, map: &[LogOdds], n: u32)
@@ -231,8 +243,6 @@ where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
-        let mut rows = self.raster.rows;
-        let (known_rows, occupied_rows) = (self.raster.known, self.raster.occupied);
         let (x_start, y) = (self.raster.x_start, self.raster.y);
         let (x_first, x_end) = (self.raster.x, self.raster.x + n as i32);
         // `random_patch_step`'s countdown as the centre of the next random patch (one compare
@@ -257,7 +267,9 @@ where
             let centre = CellCoord { x, y };
             // The centre's offset in the segment (0 ≤ s < span ≤ 27).
             let sh = (x - x_start) as u32 & 31;
-            let [r0, r1, r2, r3, r4] = rows.map(|r| r >> sh);
+            // The rows stay in `self.raster` (one load-multiple per update) rather than in
+            // locals, which the calls below would spill and reload.
+            let [r0, r1, r2, r3, r4] = self.raster.rows.map(|r| r >> sh);
             // The patch and its border ([`crate::patch`]'s layouts) straight from the rows.
             let current = ((r1 >> 1 & 7) | (r2 >> 1 & 7) << 3 | (r3 >> 1 & 7) << 6) as u16;
             let border = ((r0 & 0x1F)
@@ -268,9 +280,8 @@ where
                 | (r1 >> 4 & 1) << 13
                 | (r2 >> 4 & 1) << 14
                 | (r3 >> 4 & 1) << 15) as u16;
-            let [k0, k1, k2] = known_rows.map(|k| (k >> sh) & 7);
-            let [o0, o1, o2] = occupied_rows.map(|o| (o >> sh) & 7);
-            let (known, occupied) = (k0 | k1 << 3 | k2 << 6, o0 | o1 << 3 | o2 << 6);
+            let m = self.raster.masks.get(sh as usize).copied().unwrap_or(0);
+            let (known, occupied) = (m & 0x1FF, m >> 16);
             // The incremental window and masks equal a fresh read (checked in every debug build).
             debug_assert_eq!((current, border), self.config_and_border(centre));
             debug_assert_eq!(
@@ -309,17 +320,16 @@ where
             };
             if new != current {
                 // The patch's cells in the segment's rows: columns sh + 1 ..= sh + 3.
-                for (r, row) in rows.iter_mut().skip(1).take(3).enumerate() {
+                for (r, row) in self.raster.rows.iter_mut().skip(1).take(3).enumerate() {
                     let bits = u32::from(new) >> (3 * r) & 7;
                     *row = (*row & !(7 << (sh + 1))) | bits << (sh + 1);
                 }
             }
         }
         if dirty {
-            let [_, r1, r2, r3, _] = rows;
+            let [_, r1, r2, r3, _] = self.raster.rows;
             self.raster_store([r1, r2, r3]);
         }
-        self.raster.rows = rows;
         if period != 0 {
             // No random patch came after the last one drawn (or, with none drawn, in the run).
             self.rand_gap = match drawn {
