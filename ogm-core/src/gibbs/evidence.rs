@@ -113,7 +113,7 @@ impl PatchTerms {
         let l = Self::cells(map, width, centre);
         // |l| ≤ 2^15 and gains ≤ 2^16: each term fits an i32, nine of them too.
         let v = |i: usize| {
-            let l = i32::from(l.get(i).copied().unwrap_or(0));
+            let l = l.get(i).copied().unwrap_or(0);
             (l * if l > 0 { occ_q8 } else { free_q8 }) >> 8
         };
         let row = |r: usize| {
@@ -124,15 +124,16 @@ impl PatchTerms {
     }
 
     /// The log-odds of the patch's cells ([`crate::patch`] bit order), 0 in rows not wholly in
-    /// the map (they contribute nothing).
+    /// the map (they contribute nothing). Widened here, where they are loaded (as `i16` the
+    /// merge with the cold path cost a sign extension per cell).
     #[inline]
-    fn cells(map: &[LogOdds], width: usize, centre: CellCoord) -> [i16; 9] {
+    fn cells(map: &[LogOdds], width: usize, centre: CellCoord) -> [i32; 9] {
         let x0 = centre.x - 1;
         // The usual case, the whole patch in the map: one bounds check for its three rows.
         if x0 >= 0 && centre.y >= 1 {
             let start = (centre.y - 1) as usize * width + x0 as usize;
             if let Some(area) = map.get(start..start + 2 * width + 3) {
-                let at = |i: usize| area.get(i).map_or(0, |l| l.0);
+                let at = |i: usize| area.get(i).map_or(0, |l| i32::from(l.0));
                 let (w1, w2) = (width, 2 * width);
                 return [
                     at(0),
@@ -155,8 +156,8 @@ impl PatchTerms {
     /// here.
     #[cold]
     #[inline(never)]
-    fn cells_by_rows(map: &[LogOdds], width: usize, centre: CellCoord) -> [i16; 9] {
-        let mut l = [0i16; 9];
+    fn cells_by_rows(map: &[LogOdds], width: usize, centre: CellCoord) -> [i32; 9] {
+        let mut l = [0i32; 9];
         let x0 = centre.x - 1;
         for (r, out) in l.chunks_exact_mut(3).enumerate() {
             let y = centre.y - 1 + r as i32;
@@ -166,7 +167,7 @@ impl PatchTerms {
             let start = y as usize * width + x0 as usize;
             if let Some(row) = map.get(start..start + 3) {
                 for (o, c) in out.iter_mut().zip(row) {
-                    *o = c.0;
+                    *o = i32::from(c.0);
                 }
             }
         }
