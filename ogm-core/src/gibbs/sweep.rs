@@ -42,17 +42,6 @@ pub(crate) struct Raster {
     masks: [u32; 32],
 }
 
-impl Raster {
-    /// The masks one row up: rows 1 and 2 move down, `(known, occupied)` is the new top row.
-    #[inline(never)]
-    fn masks_up(&mut self, known: u32, occupied: u32) {
-        for (s, m) in self.masks.iter_mut().enumerate().take(self.span as usize) {
-            let s = s as u32;
-            *m = (*m >> 3 & 0x003F_003F) | ((known >> s) & 7) << 6 | ((occupied >> s) & 7) << 22;
-        }
-    }
-}
-
 /// Most centres per segment: a sample row then spans `MAX_SPAN + 4` ≤ 31 bits.
 const MAX_SPAN: i32 = 27;
 
@@ -122,8 +111,7 @@ where
         {
             let [_, r1, r2, r3, r4] = self.raster.rows;
             self.raster.rows = [r1, r2, r3, r4, self.sample_row(x, y + 2, span)];
-            let (k, o) = self.evidence_row(map, x, y + 1, span);
-            self.raster.masks_up(k, o);
+            self.evidence_up(map, x, y + 1, span);
             self.raster.valid = true;
             return;
         }
@@ -135,8 +123,7 @@ where
         (self.raster.x_start, self.raster.span) = (x, span);
         // Three rows up from whatever the masks held: only the three rows remain.
         for y in y - 1..=y + 1 {
-            let (k, o) = self.evidence_row(map, x, y, span);
-            self.raster.masks_up(k, o);
+            self.evidence_up(map, x, y, span);
         }
         self.raster.valid = true;
     }
@@ -153,30 +140,26 @@ where
         }
     }
 
-    /// The evidence bits (log-odds ≠ 0, > 0) of row `y`, columns `x − 1 ..= x + span`. Not
-    /// inlined: once per segment, and its unrolled loop was in the firmware four times.
+    /// Moves the segment's masks up a row: the evidence (log-odds ≠ 0, > 0) of row `y`, columns
+    /// `x − 1 ..= x + span`, becomes their top row, each centre's three bits from a window that
+    /// slides along the row (one pass over its cells). Not inlined: once per segment.
     #[inline(never)]
-    fn evidence_row(&self, map: &[LogOdds], x: i32, y: i32, span: i32) -> (u32, u32) {
+    fn evidence_up(&mut self, map: &[LogOdds], x: i32, y: i32, span: i32) {
         let width = usize::from(self.geometry.width());
         // In the map (the 2-cell margin), so a slice that is not (only a broken tiling) reads as
         // no evidence.
         let start = y as usize * width + (x - 1) as usize;
-        let Some(cells) = map.get(start..start + span as usize + 2) else {
-            return (0, 0);
+        let cells = map.get(start..start + span as usize + 2).unwrap_or(&[]);
+        // The window's bits: known in 0..3, occupied in 16..19 (the masks' layout).
+        let push = |w: u32, j: usize| {
+            let l = cells.get(j).map_or(0, |l| l.0);
+            (w >> 1 & 0x0003_0003) | u32::from(l != 0) << 2 | u32::from(l > 0) << 18
         };
-        // One moving bit: a compare and a conditional OR per mask and cell.
-        let (mut k, mut o) = (0u32, 0u32);
-        let mut bit = 1u32;
-        for l in cells {
-            if l.0 != 0 {
-                k |= bit;
-            }
-            if l.0 > 0 {
-                o |= bit;
-            }
-            bit <<= 1;
+        let mut w = push(push(0, 0), 1);
+        for (s, m) in self.raster.masks.iter_mut().enumerate().take(span as usize) {
+            w = push(w, s + 2);
+            *m = (*m >> 3 & 0x003F_003F) | w << 6;
         }
-        (k, o)
     }
 
     /// Writes the segment's rows y − 1 ..= y + 1 (`rows`, what [`Gibbs::sample_row`] read and the
