@@ -336,6 +336,10 @@ pub struct Figures {
     pub insert_per_scan_max: u64,
     /// … per updated cell.
     pub insert_per_cell: f64,
+    /// The largest per-scan step plus sampling after it (`insert_ticks + store_ticks +
+    /// sampler_ticks`), instructions: under a time budget, at most the period plus the
+    /// sampler's last call past it.
+    pub cycle_per_scan_max: u64,
     /// Ray store add + first-occupied refresh, per scan, when the firmware times it separately
     /// (older firmware; 0 since both are part of `insert_and_seed`, i.e. of `insert_per_scan`).
     pub store_per_scan: f64,
@@ -1004,6 +1008,11 @@ fn figures(g: &Groups, hello: &HelloInfo) -> Figures {
         f.insert_per_scan_max = f
             .insert_per_scan_max
             .max((f64::from(r.insert_ticks) * ns_per_tick) as u64);
+        let cycle =
+            u64::from(r.insert_ticks) + u64::from(r.store_ticks) + u64::from(r.sampler_ticks);
+        f.cycle_per_scan_max = f
+            .cycle_per_scan_max
+            .max((cycle as f64 * ns_per_tick) as u64);
     }
     let n = f64::from(f.scans.max(1));
     f.beams_per_scan = beams as f64 / n;

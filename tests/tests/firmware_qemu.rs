@@ -58,9 +58,21 @@ fn firmware_in_qemu_streams_the_hosts_map() {
     );
     assert_eq!(c.link.points_lost, 0);
     assert_eq!(c.beams_overflowed, 0);
-    // The sampler ran within its budget and produced marginals.
+    // The sampler ran within its budget and produced marginals: no scan's step and sampling
+    // took more than the period (6.4 ms = 6.4 M instructions under icount) plus 1 % (the
+    // sampler's last call past it: each call asks for half of the time left).
     let s = r.sampler.expect("final sampler report");
     assert!(s.updates > 0 && s.samples > 0, "{s:?}");
+    let period = u64::from(args.period_us) * 1_000;
+    eprintln!(
+        "longest scan cycle: {} instructions for a period of {period}",
+        r.figures.cycle_per_scan_max
+    );
+    assert!(
+        r.figures.cycle_per_scan_max > 0 && r.figures.cycle_per_scan_max <= period + period / 100,
+        "a scan took {} instructions for a period of {period}",
+        r.figures.cycle_per_scan_max
+    );
     let d = r.done.expect("Done");
     assert!(d.stack_used > 0 && d.stack_used < d.stack_size, "{d:?}");
 }
