@@ -121,16 +121,7 @@ pub trait Count: Copy + Default {
         shift: u8,
         dither: u32,
     ) {
-        for r in 0..3 {
-            Self::average_row(
-                counts,
-                start + r * width,
-                3,
-                config >> (3 * r),
-                shift,
-                row_dither(dither, r),
-            );
-        }
+        average_rows(counts, start, width, config, shift, dither);
     }
     /// [`Count::average_patch3`] with the shift's derived masks ([`AverageShift`], computed
     /// once per tile visit instead of once per update).
@@ -290,8 +281,23 @@ fn average_rows_u8(
     shift: u8,
     dither: u32,
 ) {
+    average_rows(counts, start, width, config, shift, dither);
+}
+
+/// The body of [`Count::average_patch3`]'s default: [`Count::average_row`] of each of the
+/// patch's three rows. One copy for the default and [`average_rows_u8`] (which `u8`'s override
+/// cannot reach through the trait method: it would call itself).
+#[inline(always)]
+fn average_rows<N: Count>(
+    counts: &mut [N],
+    start: usize,
+    width: usize,
+    config: u32,
+    shift: u8,
+    dither: u32,
+) {
     for r in 0..3 {
-        u8::average_row(
+        N::average_row(
             counts,
             start + r * width,
             3,
