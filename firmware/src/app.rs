@@ -987,7 +987,7 @@ fn wait_for_host<L: ReadReady, P: Platform>(link: &mut L, platform: &P) -> bool 
 /// The settings a robot maps with when no host configures it: [`RunConfig::robot`] on a grid
 /// centred on where it was switched on, an LD06's range (12 m), a sampler budget of one LD06
 /// turn (100 ms), and no poses (it maps as a standing sensor: [`PoseInput::Fixed`]). A
-/// constant: [`STORED_FREE_Q8`] is the robot's noise-matched free scale, checked by a test.
+/// constant ([`RunConfig::robot_at_paper_sigma`]; a test checks it equals `RunConfig::robot`).
 pub const STORED_CONFIG: RunConfig = {
     let half_w = -((WIDTH as i64 * 50 / 2) as i32);
     let half_h = -((HEIGHT as i64 * 50 / 2) as i32);
@@ -995,15 +995,12 @@ pub const STORED_CONFIG: RunConfig = {
         period_us: 100_000,
         max_updates: u32::MAX,
     };
-    let robot = RunConfig::robot_with_free((half_w, half_h), 12_000, 1, budget, STORED_FREE_Q8);
+    let robot = RunConfig::robot_at_paper_sigma((half_w, half_h), 12_000, 1, budget);
     RunConfig {
         poses: PoseInput::Fixed,
         ..robot
     }
 };
-
-/// `ogm_core::gibbs::noise_matched_free_q8(3.0)`, the paper's σ of 3 cells.
-pub const STORED_FREE_Q8: u16 = 141;
 
 /// How long the link is held back for a lidar that sends nothing before poses are taken anyway
 /// (so a host is never locked out by a silent lidar), µs.

@@ -51,15 +51,14 @@ pub fn run<W: Write, S: Storage, P: Platform>(
     link: &mut W,
     platform: &mut P,
 ) -> i32 {
-    // `RunConfig::robot`, with its free scale as a constant (no floating-point code).
-    let config = RunConfig::robot_with_free(
+    // `RunConfig::robot` as a constant (no floating-point code).
+    let config = RunConfig::robot_at_paper_sigma(
         (-6400, -6400),
         MAX_RANGE_MM,
         1,
         Budget::Fixed {
             updates: UPDATES_PER_SCAN,
         },
-        crate::app::STORED_FREE_Q8,
     );
     app.configure(link, platform, config);
     for (k, p) in POSES.iter().enumerate() {

@@ -2035,6 +2035,8 @@ fn accuracy(
         evidence_gain_q8: config.evidence_gain_q8,
         evidence_free_q8: config.evidence_free_q8,
         free_update_q8: config.free_update_q8,
+        face_band: config.face_band,
+        sigma_cells: f64::from(config.sigma_milli_cells) / 1000.0,
         data_candidate: config.data_candidate,
         estimator: config.estimator,
         hot_share: config.hot_share,
@@ -2068,15 +2070,15 @@ fn accuracy(
         let seed = args.seed + u64::from(run);
         let trad: Vec<f64> = sim.map.iter().map(|l| l.probability()).collect();
         score("traditional", &trad)?;
-        // The robot's own log-odds map (its mapper's free update matched to the noise): the
-        // sampler is measured against both.
-        if config.free_update_q8 != 256 {
-            let own = crate::sampling::evidence_map(
-                sim.geometry,
-                &sim.mapper_config,
-                scans,
-                config.free_update_q8,
-            )?;
+        // The robot's own log-odds map (its mapper matched to the noise): the sampler is
+        // measured against both.
+        if config.free_update_q8 != 256 || config.face_band {
+            let model = config
+                .mapper_config()
+                .map_err(|e| anyhow!("settings: {e}"))?
+                .model;
+            let own =
+                crate::sampling::evidence_map(sim.geometry, &sim.mapper_config, scans, model)?;
             let own: Vec<f64> = own.iter().map(|l| l.probability()).collect();
             score("traditional_noise_matched", &own)?;
         }

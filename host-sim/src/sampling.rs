@@ -17,6 +17,7 @@ use ogm_core::gibbs::{
     NeighbourPrior, PatchPrior, SamplerConfig, SamplerStats, UnconditionedPrior,
 };
 use ogm_core::ray_store::{RayStore, StoreStats, StoredRay, StoredScan};
+use ogm_core::sensor_model::InverseSensorModel;
 use ogm_core::{GridGeometry, LogOdds, MapperConfig};
 use serde::{Deserialize, Serialize};
 
@@ -97,24 +98,25 @@ impl Variant {
     pub fn configure(self, cfg: &SamplingConfig) -> SamplingConfig {
         match self {
             Variant::L9Border | Variant::L9BorderHybrid | Variant::L9BorderMean => {
+                // The robot's settings at this data set's σ: the face band, or the split free
+                // update and the 1/σ evidence gain.
                 let robot = ogm_core::wire::RunConfig::robot(
                     (0, 0),
                     1,
                     0,
                     ogm_core::wire::Budget::Fixed { updates: 0 },
-                );
-                // The robot's split: √r in the mapper's update, √r in the evidence term.
-                let free = ogm_core::gibbs::noise_matched_free_q8(cfg.sigma_cells);
+                )
+                .with_noise_matched(cfg.sigma_cells);
                 SamplingConfig {
                     data: if self == Variant::L9BorderHybrid {
                         DataTerm::Hybrid
                     } else {
                         DataTerm::Evidence
                     },
-                    // The robot's law, at this data set's σ (512 at the robot's σ = 3 cells).
-                    evidence_gain_q8: ogm_core::gibbs::noise_matched_gain_q8(cfg.sigma_cells),
-                    evidence_free_q8: free,
-                    free_update_q8: free,
+                    evidence_gain_q8: robot.evidence_gain_q8,
+                    evidence_free_q8: robot.evidence_free_q8,
+                    free_update_q8: robot.free_update_q8,
+                    face_band: robot.face_band,
                     data_candidate: robot.data_candidate,
                     estimator: if self == Variant::L9BorderMean {
                         Estimator::Counts
@@ -184,6 +186,10 @@ pub struct SamplingConfig {
     /// own log-odds map; otherwise the scans are mapped again with the scaled model, as the
     /// robot's mapper does).
     pub free_update_q8: u16,
+    /// The robot's mapper uses the face band of σ = `sigma_cells` for the map the evidence term
+    /// reads (`RunConfig::face_band`; the scans are mapped again with it).
+    #[serde(default)]
+    pub face_band: bool,
     /// Offer the evidence's configuration as a candidate.
     pub data_candidate: bool,
     /// Marginal estimator.
@@ -210,10 +216,40 @@ impl Default for SamplingConfig {
             evidence_gain_q8: 256,
             evidence_free_q8: 256,
             free_update_q8: 256,
+            face_band: false,
             data_candidate: false,
             estimator: Estimator::Counts,
             hot_share: 0,
         }
+    }
+}
+
+impl SamplingConfig {
+    /// The inverse model of the map the evidence term reads: `mapper`'s with the free update
+    /// scaled by `free_update_q8` and, with `face_band`, the band of σ = `sigma_cells`.
+    pub fn evidence_model(
+        &self,
+        geometry: &GridGeometry,
+        mapper: &MapperConfig,
+    ) -> anyhow::Result<InverseSensorModel> {
+        let q8 = self.free_update_q8;
+        let model = mapper
+            .model
+            .with_free_scale(q8)
+            .map_err(|e| anyhow!("free update scale {q8}: {e}"))?;
+        if !self.face_band {
+            return Ok(model);
+        }
+        let sigma_mm = (self.sigma_cells * f64::from(geometry.cell_mm())).round();
+        anyhow::ensure!(
+            sigma_mm >= 1.0 && sigma_mm < f64::from(u32::MAX),
+            "face band: σ = {} cells is not a whole number of mm ≥ 1",
+            self.sigma_cells
+        );
+        let band = InverseSensorModel::hahnel_face_band(sigma_mm as u32)
+            .map_err(|e| anyhow!("face band: {e}"))?;
+        band.with_free_scale(q8)
+            .map_err(|e| anyhow!("free update scale {q8}: {e}"))
     }
 }
 
@@ -323,8 +359,9 @@ impl Prepared {
         seed: u64,
     ) -> anyhow::Result<Prepared> {
         let remapped;
-        let map = if cfg.free_update_q8 != 256 && cfg.data != DataTerm::Rays {
-            remapped = evidence_map(geometry, mapper, scans, cfg.free_update_q8)?;
+        let map = if (cfg.free_update_q8 != 256 || cfg.face_band) && cfg.data != DataTerm::Rays {
+            let model = cfg.evidence_model(&geometry, mapper)?;
+            remapped = evidence_map(geometry, mapper, scans, model)?;
             &remapped[..]
         } else {
             map
@@ -384,21 +421,15 @@ impl Prepared {
     }
 }
 
-/// The scans mapped again with `mapper`'s model, its free update scaled by `free_update_q8`:
-/// the log-odds map the robot's mapper keeps (`RunConfig::mapper_config`).
+/// The scans mapped again with `model` instead of `mapper`'s: the log-odds map the robot's
+/// mapper keeps (`RunConfig::mapper_config`, [`SamplingConfig::evidence_model`]).
 pub fn evidence_map(
     geometry: GridGeometry,
     mapper: &MapperConfig,
     scans: &[ScanRecord],
-    free_update_q8: u16,
+    model: InverseSensorModel,
 ) -> anyhow::Result<Vec<LogOdds>> {
-    let config = MapperConfig {
-        model: mapper
-            .model
-            .with_free_scale(free_update_q8)
-            .map_err(|e| anyhow!("free update scale {free_update_q8}: {e}"))?,
-        ..*mapper
-    };
+    let config = MapperConfig { model, ..*mapper };
     let mut m = crate::sim::new_mapper(geometry, config)?;
     for s in scans {
         m.insert_scan(&s.pose, &s.beams)

@@ -29,7 +29,9 @@ use crate::geometry::{CellCoord, GridGeometry, Pose};
 use crate::grid::LogOddsGrid;
 use crate::hal::{Beam, Range};
 use crate::ray::{IndexWalk, Ray, Steps};
-use crate::sensor_model::{InverseModelKind, InverseSensorModel};
+use crate::sensor_model::{
+    face_band_delta, InverseModelKind, InverseSensorModel, FACE_BAND_REACH_EIGHTHS,
+};
 
 /// Mapper settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -90,6 +92,10 @@ pub enum CellUpdate {
     Hit,
     /// Free (`l_free − l₀`).
     Free,
+    /// In a reading's face band ([`InverseModelKind::FaceBand`]), this many eighths of σ past
+    /// the reading (within ±[`crate::sensor_model::FACE_BAND_REACH_EIGHTHS`]):
+    /// `Φ(t)·(l_occ − l₀) + (1 − Φ(t))·(l_free − l₀)`.
+    Face(i8),
 }
 
 /// Words of scan-mark bitset needed for `cells` cells.
@@ -247,6 +253,57 @@ fn beam_extent(cfg: &MapperConfig, beam: &Beam) -> Option<(u32, bool)> {
     }
 }
 
+/// The face band's geometry: σ and the band's half-width in mm, and σ's inverse for the cells'
+/// band offsets.
+#[derive(Clone, Copy)]
+struct Band {
+    sigma_mm: u32,
+    reach_mm: u32,
+}
+
+impl Band {
+    fn of(cfg: &MapperConfig) -> Option<Band> {
+        match cfg.model.kind() {
+            InverseModelKind::FaceBand { sigma_mm } => Some(Band {
+                sigma_mm: sigma_mm.max(1),
+                reach_mm: sigma_mm.saturating_mul(u32::from(FACE_BAND_REACH_EIGHTHS)) / 8,
+            }),
+            _ => None,
+        }
+    }
+
+    /// How far a beam's ray is traced: a hit's reading plus the band beyond it.
+    fn traced(band: Option<Band>, range: u32, hit: bool) -> u32 {
+        match band {
+            Some(b) if hit => range.saturating_add(b.reach_mm),
+            _ => range,
+        }
+    }
+
+    /// The first step of the band on a ray of `n` steps traced to `traced` mm for a reading at
+    /// `range` mm: the first step at least `reach` before the reading (step k lies k/n of the
+    /// way, which is exact along the ray's major axis).
+    fn first_step(&self, range: u32, traced: u32, n: u64) -> u64 {
+        let before = u64::from(range.saturating_sub(self.reach_mm));
+        // Saturating: only absurd rays come near the u64 range.
+        before.saturating_mul(n).div_ceil(u64::from(traced.max(1)))
+    }
+
+    /// Step `k`'s offset past the reading in eighths of σ, rounded, clamped to the band.
+    fn eighths(&self, k: u64, range: u32, traced: u32, n: u64) -> i8 {
+        // Rays of more than 2^24 steps (a pose millions of cells off the grid) are scaled down
+        // so that everything below fits an i64: 16·past < 2^61, 2·den < 2^58.
+        let shift = (64 - n.leading_zeros()).saturating_sub(24);
+        let (k, n) = ((k >> shift) as i64, ((n >> shift) as i64).max(1));
+        // mm past the reading, times n.
+        let past = k * i64::from(traced) - i64::from(range) * n;
+        let den = i64::from(self.sigma_mm) * n;
+        let t8 = (16 * past + if past >= 0 { den } else { -den }) / (2 * den);
+        let r = i64::from(FACE_BAND_REACH_EIGHTHS);
+        t8.clamp(-r, r) as i8
+    }
+}
+
 /// The box of cells a scan can change under the beam model, as inclusive `(min, max)` corners:
 /// the pose's cell and the end cell of every beam the mapper uses (traced to the maximum range
 /// for no-returns), inside the grid or not. The firmware streams the tiles it covers.
@@ -258,11 +315,12 @@ pub fn scan_box(
 ) -> (CellCoord, CellCoord) {
     let c = g.cell_of_pose(pose);
     let (mut lo, mut hi) = (c, c);
+    let band = Band::of(cfg);
     for b in beams {
-        let Some((range, _)) = beam_extent(cfg, b) else {
+        let Some((range, hit)) = beam_extent(cfg, b) else {
             continue;
         };
-        let (x, y) = pose.beam_end(b.angle, range);
+        let (x, y) = pose.beam_end(b.angle, Band::traced(band, range, hit));
         let e = g.cell_of_point(x, y);
         lo = CellCoord {
             x: lo.x.min(e.x),
@@ -295,7 +353,9 @@ pub fn classify_scan(
         });
     }
     match cfg.model.kind() {
-        InverseModelKind::Beam => Ok(classify_beam(geometry, cfg, pose, beams, marks, &mut sink)),
+        InverseModelKind::Beam | InverseModelKind::FaceBand { .. } => {
+            Ok(classify_beam(geometry, cfg, pose, beams, marks, &mut sink))
+        }
         InverseModelKind::Cone { alpha_mm, beta } => {
             classify_cone(geometry, cfg, pose, beams, alpha_mm, beta, &mut sink)
         }
@@ -319,50 +379,88 @@ fn classify_beam(
         to_cell.cell(x, y)
     };
     let (width, height) = (g.width(), g.height());
-    // Pass 1: hits.
+    let w = usize::from(width);
+    let max_row = i32::from(height) - 1;
+    let origin_inside = g.contains(origin);
+    let band = Band::of(cfg);
+    // The steps of a ray that lie in the grid.
+    let in_grid = |ray: &Ray, end: CellCoord| {
+        if origin_inside && g.contains(end) {
+            Some(Steps {
+                first: 0,
+                last: ray.steps(),
+            })
+        } else {
+            ray.clip(width, height)
+        }
+    };
+    // Pass 1: hits (the end cell, or the face band).
     for beam in beams {
-        match beam_extent(cfg, beam) {
-            None => stats.beams_dropped += 1,
-            Some((range, hit)) => {
-                stats.beams_used += 1;
-                if hit {
-                    if let Some(i) = g.index(end_cell(range, beam.angle)) {
-                        if Marks::first_touch(marks.words, i) {
-                            marks.cover(i, i);
-                            stats.cells_hit += 1;
-                            sink(i, CellUpdate::Hit);
-                        }
+        let Some((range, hit)) = beam_extent(cfg, beam) else {
+            stats.beams_dropped += 1;
+            continue;
+        };
+        stats.beams_used += 1;
+        match band {
+            _ if !hit => {}
+            None => {
+                if let Some(i) = g.index(end_cell(range, beam.angle)) {
+                    if Marks::first_touch(marks.words, i) {
+                        marks.cover(i, i);
+                        stats.cells_hit += 1;
+                        sink(i, CellUpdate::Hit);
                     }
+                }
+            }
+            Some(b) => {
+                let traced = Band::traced(band, range, true);
+                let end = end_cell(traced, beam.angle);
+                let ray = Ray::new(origin, end);
+                let n = ray.steps();
+                let Some(mut steps) = in_grid(&ray, end) else {
+                    continue;
+                };
+                steps.first = steps.first.max(b.first_step(range, traced, n));
+                if steps.first > steps.last {
+                    continue;
+                }
+                let words = &mut *marks.words;
+                ray.for_each_index(steps, width, |k, i| {
+                    if Marks::first_touch(words, i) {
+                        stats.cells_hit += 1;
+                        sink(i, CellUpdate::Face(b.eighths(k, range, traced, n)));
+                    }
+                });
+                let (y0, y1) = (origin.y.min(end.y).max(0), origin.y.max(end.y).min(max_row));
+                if y0 <= y1 {
+                    marks.cover(y0 as usize * w, y1 as usize * w + (w - 1));
                 }
             }
         }
     }
-    // Pass 2: free space up to (not including) each hit's end cell, or through max range.
-    let w = usize::from(width);
-    let max_row = i32::from(height) - 1;
-    let origin_inside = g.contains(origin);
+    // Pass 2: free space up to (not including) each hit's end cell or band, or through max
+    // range.
     let mut freed = 0u32;
     let mut chunk = [0u32; CHUNK];
     for beam in beams {
         let Some((range, hit)) = beam_extent(cfg, beam) else {
             continue;
         };
-        let end = end_cell(range, beam.angle);
+        let traced = Band::traced(band, range, hit);
+        let end = end_cell(traced, beam.angle);
         let ray = Ray::new(origin, end);
         // Both ends inside: the whole ray is (what `clip` would find, without its arithmetic).
-        let mut steps = if origin_inside && g.contains(end) {
-            Steps {
-                first: 0,
-                last: ray.steps(),
-            }
-        } else {
-            match ray.clip(width, height) {
-                Some(steps) => steps,
-                None => continue,
-            }
+        let Some(mut steps) = in_grid(&ray, end) else {
+            continue;
         };
-        // A hit's end cell is not freed (it was hit in pass 1).
-        if hit && steps.last == ray.steps() {
+        if let (Some(b), true) = (band, hit) {
+            // The band was updated in pass 1; free only what lies before it.
+            match b.first_step(range, traced, ray.steps()).checked_sub(1) {
+                Some(last) if last >= steps.first => steps.last = steps.last.min(last),
+                _ => continue,
+            }
+        } else if hit && steps.last == ray.steps() {
+            // A hit's end cell is not freed (it was hit in pass 1).
             if steps.last == 0 || steps.first == steps.last {
                 continue;
             }
@@ -559,6 +657,15 @@ impl ScanBox {
     }
 }
 
+/// [`FACE_BAND_REACH_EIGHTHS`] as an `i32`.
+const FACE_REACH: i32 = FACE_BAND_REACH_EIGHTHS as i32;
+
+/// The face band's updates by eighths of σ past the reading, `−R ..= R`, once per scan.
+fn face_deltas(update: &Update) -> [i32; 2 * FACE_BAND_REACH_EIGHTHS as usize + 1] {
+    // j ≤ 2R = 24: fits an i8.
+    core::array::from_fn(|j| face_band_delta(update.occ, update.free, j as i8 - FACE_REACH as i8))
+}
+
 /// Hit cells remembered between marking and applying the hits, so that their end points are
 /// computed once per scan; hits beyond this many are computed again.
 const HIT_TABLE: usize = if cfg!(target_pointer_width = "64") {
@@ -610,14 +717,15 @@ fn insert_beam_model<const REPORT: bool>(
     let mut hits = [NO_CELL; HIT_TABLE];
     let mut n_hits = 0usize;
     let mut area = ScanBox::empty();
-    // Pass 1: mark every ray.
+    let band = Band::of(cfg);
+    // Pass 1: mark every ray (with the face band, through its band).
     for beam in beams {
         let Some((range, hit)) = beam_extent(cfg, beam) else {
             stats.beams_dropped += 1;
             continue;
         };
         stats.beams_used += 1;
-        let end = end_cell(range, beam.angle);
+        let end = end_cell(Band::traced(band, range, hit), beam.angle);
         if hit {
             if let Some(slot) = hits.get_mut(n_hits) {
                 // In-grid indices are < 2^32 − 1 (see NO_CELL).
@@ -648,9 +756,46 @@ fn insert_beam_model<const REPORT: bool>(
         }
         area.cover(origin, end);
     }
-    // Pass 2: hits, in beam order; each in-grid hit cell's bit was set by its own ray.
+    // Pass 2: hits, in beam order; each in-grid hit cell's bit was set by its own ray. With the
+    // face band, each hit's band cells, in beam order (set by its own ray too).
+    if let Some(b) = band {
+        let face = face_deltas(&update);
+        for beam in beams {
+            let Some((range, true)) = beam_extent(cfg, beam) else {
+                continue;
+            };
+            let traced = Band::traced(band, range, true);
+            let end = end_cell(traced, beam.angle);
+            let ray = Ray::new(origin, end);
+            let n = ray.steps();
+            let steps = if origin_inside && g.contains(end) {
+                Some(Steps { first: 0, last: n })
+            } else {
+                ray.clip(width, height)
+            };
+            let Some(mut steps) = steps else { continue };
+            steps.first = steps.first.max(b.first_step(range, traced, n));
+            if steps.first > steps.last {
+                continue;
+            }
+            ray.for_each_index(steps, width, |k, i| {
+                let (w, bit) = (i / 32, 1u32 << (i % 32));
+                if let (Some(word), Some(cell)) = (marks.get_mut(w), cells.get_mut(i)) {
+                    if *word & bit != 0 {
+                        *word &= !bit;
+                        let before = *cell;
+                        let t8 = i32::from(b.eighths(k, range, traced, n));
+                        let j = (t8 + FACE_REACH).clamp(0, 2 * FACE_REACH) as usize;
+                        *cell = update.apply(before, face.get(j).copied().unwrap_or(0));
+                        stats.cells_hit += 1;
+                        on_update(i, before, *cell);
+                    }
+                }
+            });
+        }
+    }
     let mut k = 0usize;
-    for beam in beams {
+    for beam in beams.iter().filter(|_| band.is_none()) {
         let Some((range, true)) = beam_extent(cfg, beam) else {
             continue;
         };
@@ -818,7 +963,7 @@ where
         let geometry = *grid.geometry();
         let cells = grid.cells_mut();
         match config.model.kind() {
-            InverseModelKind::Beam => {
+            InverseModelKind::Beam | InverseModelKind::FaceBand { .. } => {
                 let marks = marks.as_mut();
                 if marks.len() < marks_len(geometry.len()) {
                     return Err(Error::BufferSize {
@@ -842,6 +987,8 @@ where
                     let delta = match u {
                         CellUpdate::Hit => update.occ,
                         CellUpdate::Free => update.free,
+                        // Only the face band's classification reports these.
+                        CellUpdate::Face(t8) => face_band_delta(update.occ, update.free, t8),
                     };
                     if let Some(cell) = cells.get_mut(i) {
                         let before = *cell;
@@ -999,6 +1146,11 @@ mod tests {
                 let delta = match u {
                     CellUpdate::Hit => cfg.model.occ_increment(),
                     CellUpdate::Free => cfg.model.free_increment(),
+                    CellUpdate::Face(t8) => LogOdds(crate::sensor_model::face_band_delta(
+                        i32::from(cfg.model.occ_increment().0),
+                        i32::from(cfg.model.free_increment().0),
+                        t8,
+                    ) as i16),
                 };
                 want[i] = cfg.clamp.apply(before, delta);
                 expected.push((i, before, want[i], u));
@@ -1009,7 +1161,7 @@ mod tests {
             let hits = (stats.cells_hit as usize).min(got.len());
             let want_hits: Vec<_> = expected
                 .iter()
-                .filter(|c| c.3 == CellUpdate::Hit)
+                .filter(|c| c.3 != CellUpdate::Free)
                 .map(|c| (c.0, c.1, c.2))
                 .collect();
             let mut want_frees: Vec<_> = expected
@@ -1065,10 +1217,14 @@ mod tests {
                                               max_range in 1u32..10_000, min_range in 0u32..300,
                                               start in prop::collection::vec(any::<i16>(), 16),
                                               p_occ in 0.55f64..0.97, p_free in 0.03f64..0.45,
-                                              wide_clamp in any::<bool>()) {
+                                              wide_clamp in any::<bool>(),
+                                              band in prop::option::of((1u32..400, 1u16..=256))) {
             let mut cfg = MapperConfig::new(max_range.max(min_range + 1));
             cfg.min_range_mm = min_range;
-            cfg.model = InverseSensorModel::beam(p_occ, p_free, 0.5).unwrap();
+            cfg.model = match band {
+                Some((sigma, q8)) => InverseSensorModel::hahnel_face_band(sigma).unwrap().with_free_scale(q8).unwrap(),
+                None => InverseSensorModel::beam(p_occ, p_free, 0.5).unwrap(),
+            };
             if wide_clamp {
                 cfg.clamp = Clamp::new(LogOdds(-i16::MAX), LogOdds(i16::MAX)).unwrap();
             }
@@ -1082,7 +1238,8 @@ mod tests {
                                             fx in 0.0f64..1.0, fy in 0.0f64..1.0, heading in any::<u16>(),
                                             n in 8usize..400, jitter in prop::collection::vec(0u16..200, 400),
                                             ranges in prop::collection::vec(prop_oneof![6 => 0u32..12_000, 1 => Just(u32::MAX)], 400),
-                                            max_range in 500u32..10_000) {
+                                            max_range in 500u32..10_000,
+                                            band in prop::option::of(1u32..300)) {
             let g = GridGeometry::new(w, h, cell, -1_000, 2_000).unwrap();
             let x = -1_000 + (fx * f64::from(w) * f64::from(cell)) as i32;
             let y = 2_000 + (fy * f64::from(h) * f64::from(cell)) as i32;
@@ -1093,7 +1250,10 @@ mod tests {
                 })
                 .collect();
             beams.sort_by_key(|b| b.angle.0);
-            let cfg = MapperConfig::new(max_range);
+            let mut cfg = MapperConfig::new(max_range);
+            if let Some(sigma) = band {
+                cfg.model = InverseSensorModel::hahnel_face_band(sigma).unwrap();
+            }
             check_against_classification(g, cfg, (x, y, heading), &[beams.clone(), beams], &[3, -2000, 7000, 0])?;
         }
 

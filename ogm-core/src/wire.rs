@@ -155,6 +155,13 @@ pub struct RunConfig {
     /// postcard always carries it.
     #[serde(default = "textbook_free_update")]
     pub free_update_q8: u16,
+    /// The mapper's face band ([`crate::sensor_model::InverseModelKind::FaceBand`], σ =
+    /// `sigma_milli_cells`): a reading updates the cells within 1.5 σ of it by how likely the
+    /// surface lies before them, instead of hitting its end cell. For sensors whose σ spans
+    /// several cells ([`crate::gibbs::face_band_for`]). A settings file without it reads as
+    /// `false`, the model it then meant.
+    #[serde(default)]
+    pub face_band: bool,
     /// Offer the evidence's own configuration as a candidate (`SamplerConfig::data_candidate`).
     pub data_candidate: bool,
     /// The marginal estimator.
@@ -266,6 +273,7 @@ impl RunConfig {
             evidence_gain_q8: 256,
             evidence_free_q8: 256,
             free_update_q8: 256,
+            face_band: false,
             data_candidate: false,
             estimator: Estimator::Counts,
             hot_share: 0,
@@ -288,32 +296,55 @@ impl RunConfig {
     /// three quarters of the tile visits where it changed. Why each: docs/results.md, "Online
     /// sampler".
     pub fn robot(origin_mm: (i32, i32), max_range_mm: u32, seed: u64, budget: Budget) -> Self {
-        let sigma = f64::from(Self::paper(origin_mm, max_range_mm, seed, budget).sigma_milli_cells);
-        let free = crate::gibbs::noise_matched_free_q8(sigma / 1000.0);
+        let robot = Self::robot_at_paper_sigma(origin_mm, max_range_mm, seed, budget);
+        robot.with_noise_matched(f64::from(robot.sigma_milli_cells) / 1000.0)
+    }
+
+    /// These settings with the robot's noise-matched mapper and evidence for a sensor whose
+    /// range noise is `sigma` cells (and `sigma_milli_cells` set to it): the face band where
+    /// σ spans several cells ([`crate::gibbs::face_band_for`]; then no free scaling and the
+    /// evidence as it is), else the free update split between the mapper and the evidence
+    /// term ([`crate::gibbs::noise_matched_free_q8`]) and the evidence gain of
+    /// [`crate::gibbs::noise_matched_gain_q8`].
+    pub fn with_noise_matched(self, sigma: f64) -> Self {
+        let sigma_milli_cells = libm::round((sigma * 1000.0).clamp(1.0, 1e9)) as u32;
+        if crate::gibbs::face_band_for(sigma) {
+            return RunConfig {
+                sigma_milli_cells,
+                face_band: true,
+                free_update_q8: 256,
+                evidence_free_q8: 256,
+                evidence_gain_q8: 256,
+                ..self
+            };
+        }
+        let free = crate::gibbs::noise_matched_free_q8(sigma);
         RunConfig {
-            evidence_gain_q8: crate::gibbs::noise_matched_gain_q8(sigma / 1000.0),
-            ..Self::robot_with_free(origin_mm, max_range_mm, seed, budget, free)
+            sigma_milli_cells,
+            face_band: false,
+            free_update_q8: free,
+            evidence_free_q8: free,
+            evidence_gain_q8: crate::gibbs::noise_matched_gain_q8(sigma),
+            ..self
         }
     }
 
-    /// [`RunConfig::robot`] with the noise-matched free scale given (`free_q8`, what
-    /// [`crate::gibbs::noise_matched_free_q8`] gives for the paper's σ = 3 cells: 141) and the
-    /// evidence gain of σ = 3 cells (512, [`crate::gibbs::noise_matched_gain_q8`]), so a
-    /// firmware's stored settings are a constant and carry no floating-point code.
-    pub const fn robot_with_free(
+    /// [`RunConfig::robot`] as a constant, for the paper's σ = 3 cells (what
+    /// [`RunConfig::with_noise_matched`] gives there: the face band, the evidence as it is;
+    /// tested), so a firmware's stored settings carry no floating-point code.
+    pub const fn robot_at_paper_sigma(
         origin_mm: (i32, i32),
         max_range_mm: u32,
         seed: u64,
         budget: Budget,
-        free_q8: u16,
     ) -> Self {
         let paper = Self::paper(origin_mm, max_range_mm, seed, budget);
-        let free = free_q8;
         RunConfig {
             data: DataTerm::Evidence,
-            evidence_gain_q8: 512,
-            evidence_free_q8: free,
-            free_update_q8: free,
+            evidence_gain_q8: 256,
+            evidence_free_q8: 256,
+            free_update_q8: 256,
+            face_band: true,
             data_candidate: true,
             estimator: Estimator::Average {
                 shift: 3,
@@ -348,13 +379,21 @@ impl RunConfig {
     }
 
     /// The mapper settings: Hähnel's ray model with the free update scaled by
-    /// `free_update_q8`, default clamp; [`crate::Error::InvalidModel`] if the scale is out of
-    /// range.
+    /// `free_update_q8` and, with `face_band`, the band of σ = `sigma_milli_cells`; default
+    /// clamp. [`crate::Error::InvalidModel`] if the scale is out of range or σ rounds to 0 mm.
     pub fn mapper_config(&self) -> CoreResult<MapperConfig> {
+        // Integer only: the firmware builds it (`with_free_scale` may take f64 arithmetic).
+        let model = InverseSensorModel::hahnel_free_scaled(self.free_update_q8)?;
+        let model = if self.face_band {
+            let sigma_mm = u64::from(self.sigma_milli_cells) * u64::from(self.cell_mm) / 1000;
+            model.with_face_band(u32::try_from(sigma_mm).unwrap_or(u32::MAX))?
+        } else {
+            model
+        };
         Ok(MapperConfig {
             max_range_mm: self.max_range_mm,
             min_range_mm: self.min_range_mm,
-            model: InverseSensorModel::hahnel_free_scaled(self.free_update_q8)?,
+            model,
             ..MapperConfig::new(self.max_range_mm)
         })
     }
@@ -1304,6 +1343,7 @@ mod tests {
             },
             tiles_per_scan: u16::MAX,
             count_tiles_per_scan: u16::MAX,
+            face_band: true,
             data: DataTerm::Hybrid,
             evidence_gain_q8: u16::MAX,
             evidence_free_q8: u16::MAX,
@@ -1507,12 +1547,47 @@ mod tests {
         assert_eq!(g.origin_mm(), (-6400, -6400));
         assert_eq!(c.mapper_config(), Ok(MapperConfig::new(3750)));
         let robot = RunConfig::robot((0, 0), 3750, 7, Budget::Fixed { updates: 100 });
-        assert_eq!(robot.free_update_q8, 141);
-        assert_eq!(robot.evidence_free_q8, 141);
-        assert_eq!(robot.evidence_gain_q8, 512);
+        assert_eq!(
+            robot,
+            RunConfig::robot_at_paper_sigma((0, 0), 3750, 7, Budget::Fixed { updates: 100 })
+        );
+        // σ = 3 cells of 50 mm: the face band, the evidence as it is.
+        assert!(robot.face_band);
+        assert_eq!(
+            (
+                robot.free_update_q8,
+                robot.evidence_free_q8,
+                robot.evidence_gain_q8
+            ),
+            (256, 256, 256)
+        );
         let m = robot.mapper_config().unwrap();
-        assert_eq!(m.model.free_increment(), LogOdds(-564));
+        assert_eq!(
+            m.model.kind(),
+            crate::sensor_model::InverseModelKind::FaceBand { sigma_mm: 150 }
+        );
         assert_eq!(m.model.occ_increment(), LogOdds(1024));
+        // A precise sensor (σ = 0.67 cells): no band; the free update split, the 1/σ gain.
+        let precise = robot.with_noise_matched(0.67);
+        assert!(!precise.face_band);
+        assert_eq!(precise.sigma_milli_cells, 670);
+        assert_eq!(
+            (precise.free_update_q8, precise.evidence_free_q8),
+            (256, 256)
+        );
+        assert_eq!(
+            precise.evidence_gain_q8,
+            crate::gibbs::noise_matched_gain_q8(0.67)
+        );
+        // σ = 1.5 cells: the band.
+        assert!(robot.with_noise_matched(1.5).face_band);
+        let split = RunConfig {
+            face_band: false,
+            free_update_q8: 141,
+            ..robot
+        };
+        let m = split.mapper_config().unwrap();
+        assert_eq!(m.model.free_increment(), LogOdds(-564));
         for bad in [0, 257] {
             let c = RunConfig {
                 free_update_q8: bad,

@@ -59,6 +59,47 @@ fn one_beam_frees_the_ray_and_hits_its_end() {
 }
 
 #[test]
+fn face_band_spreads_a_reading_over_its_band() {
+    use ogm_core::sensor_model::face_band_delta;
+    let g = geometry(40, 5);
+    let mut cfg = MapperConfig::new(5_000);
+    // σ = 2 cells: the band reaches 1.5 σ = 3 cells either side of the reading.
+    cfg.model = InverseSensorModel::hahnel_face_band(200).unwrap();
+    let mut m = mapper(g, cfg);
+    // From the centre of cell 2 the reading ends in cell 17 (x = 1 750 mm).
+    let s = m
+        .insert_scan(&pose(2, 2, 0.0), &[beam(0.0, Range::Hit(1_500))])
+        .unwrap();
+    assert_eq!((s.beams_used, s.cells_hit, s.cells_freed), (1, 7, 12));
+    for x in 0..40 {
+        let want = match x {
+            2..=13 => -1024,
+            // k cells past the reading's cell, in eighths of σ: 4 k.
+            14..=20 => face_band_delta(1024, -1024, (4 * (x - 17)) as i8),
+            _ => 0,
+        };
+        assert_eq!(
+            m.grid().get(at(x, 2)),
+            Some(LogOdds(want as i16)),
+            "x = {x}"
+        );
+    }
+    // Neutral at the reading, as wall as free space is free beyond the band's ends.
+    assert_eq!(m.grid().get(at(17, 2)), Some(LogOdds::ZERO));
+    assert_eq!(m.grid().get(at(20, 2)), Some(LogOdds(887)));
+    // A no-return has no band: free to the maximum range, as in the beam model.
+    let mut m = mapper(g, cfg);
+    let s = m
+        .insert_scan(&pose(2, 2, 0.0), &[beam(0.0, Range::NoReturn)])
+        .unwrap();
+    assert_eq!((s.cells_hit, s.cells_freed), (0, 38));
+    // The streamed box covers the band beyond the reading.
+    let (lo, hi) =
+        ogm_core::mapper::scan_box(&g, &cfg, &pose(2, 2, 0.0), &[beam(0.0, Range::Hit(1_500))]);
+    assert_eq!((lo.x, hi.x), (2, 20));
+}
+
+#[test]
 fn hits_win_within_a_scan_and_cells_change_once() {
     let g = geometry(20, 5);
     let mut m = mapper(g, MapperConfig::new(5_000));
@@ -260,6 +301,21 @@ proptest! {
         let mut cfg = MapperConfig::new(2_000);
         cfg.model = InverseSensorModel::cone(0.7, 0.35, 0.5, 150, Angle::from_degrees(4.0)).unwrap();
         compare(cfg, Increments::effective(&cfg), &scans, 1e-9)?;
+    }
+
+    /// The face band through the same classification: exact against the effective increments
+    /// up to the band's rounding (its Q15 Φ table and the update rounded to an LSB, under an
+    /// LSB per scan).
+    #[test]
+    fn face_band_matches_reference(scans in prop::collection::vec(scan_strategy(), 1..40),
+                                   sigma_mm in 1u32..600, free_q8 in 1u16..=256) {
+        let mut cfg = MapperConfig::new(3_000);
+        cfg.model = InverseSensorModel::hahnel_face_band(sigma_mm)
+            .unwrap()
+            .with_free_scale(free_q8)
+            .unwrap();
+        let bound = scans.len() as f64 * ogm_core::fixed::LSB_NATS / 4.0 + 1e-9;
+        compare(cfg, Increments::effective(&cfg), &scans, bound)?;
     }
 
     /// Saturation: arbitrary long runs of hits or frees on one cell stay inside the clamp and

@@ -205,6 +205,18 @@ pub fn free_evidence_q8(sigma: f64) -> u16 {
     libm::round(ratio * 256.0) as u16
 }
 
+/// Whether the robot's mapper uses the face band
+/// ([`crate::sensor_model::InverseModelKind::FaceBand`]) for a sensor with range noise `sigma`
+/// (cells): exactly where the textbook model's face cell reads free in expectation, i.e.
+/// [`free_evidence_q8`] < 256 (σ above about 1.1 cells; never for a real lidar at 5 cm). There
+/// the band replaces the free scaling: on the simulated maps (σ = 3 cells, `eval-sim`, 26
+/// datasets) the robot's sampler scores max F1 0.961 on the band's map against 0.950 with the
+/// split free update (docs/results.md, "Face band"). Below it a cell is wider than the noise
+/// and the end cell is where the surface is.
+pub fn face_band_for(sigma: f64) -> bool {
+    free_evidence_q8(sigma) < 256
+}
+
 /// The free scale (Q8) the robot applies twice, once to the mapper's free update (before the
 /// clamp) and once to the evidence term (after it): the square root of
 /// [`free_evidence_q8`]'s ratio, so that the two together scale free evidence by that ratio.

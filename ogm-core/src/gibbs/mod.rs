@@ -58,7 +58,8 @@ use crate::Angle;
 pub use estimate::Estimator;
 use evidence::patch_evidence;
 pub use evidence::{
-    free_evidence_q8, noise_matched_free_q8, noise_matched_gain_q8, DataTerm, MAX_GAIN_Q8,
+    face_band_for, free_evidence_q8, noise_matched_free_q8, noise_matched_gain_q8, DataTerm,
+    MAX_GAIN_Q8,
 };
 pub use local::{block_words, LocalRay, DEFAULT_BLOCK_GRID, MAX_BLOCK_GRID};
 use local::{for_each_ray, set_bit, BlockGrid};

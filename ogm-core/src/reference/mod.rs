@@ -112,6 +112,12 @@ where
                 let d = match u {
                     CellUpdate::Hit => inc.occ,
                     CellUpdate::Free => inc.free,
+                    CellUpdate::Face(t8) => {
+                        // Φ(t), the probability that the surface lies before the cell.
+                        let t = f64::from(t8) / 8.0;
+                        let phi = 0.5 * libm::erfc(-t / core::f64::consts::SQRT_2);
+                        phi * inc.occ + (1.0 - phi) * inc.free
+                    }
                 };
                 *c = (*c + d).clamp(inc.min, inc.max);
             }
