@@ -144,6 +144,18 @@ impl<'a> Marks<'a> {
         self.lo = self.lo.min(lo / 32);
         self.hi = self.hi.max(hi / 32);
     }
+
+    /// Records that a ray between cells `a` and `b` may have marked cells: its cells lie in the
+    /// rows between its end cells, and in the grid.
+    #[inline]
+    fn cover_rows(&mut self, a: CellCoord, b: CellCoord, width: u16, height: u16) {
+        let w = usize::from(width);
+        let (y0, y1) = (a.y.min(b.y).max(0), a.y.max(b.y).min(i32::from(height) - 1));
+        if y0 <= y1 {
+            // 0 ≤ y0 ≤ y1 < height.
+            self.cover(y0 as usize * w, y1 as usize * w + (w - 1));
+        }
+    }
 }
 
 impl Drop for Marks<'_> {
@@ -253,21 +265,28 @@ fn beam_extent(cfg: &MapperConfig, beam: &Beam) -> Option<(u32, bool)> {
     }
 }
 
-/// The face band's geometry: σ and the band's half-width in mm, and σ's inverse for the cells'
-/// band offsets.
+/// The face band's geometry: σ and the band's half-width in mm, and the half-width in eighths
+/// of σ, Q16.
 #[derive(Clone, Copy)]
 struct Band {
     sigma_mm: u32,
     reach_mm: u32,
+    reach_t: i64,
 }
 
 impl Band {
     fn of(cfg: &MapperConfig) -> Option<Band> {
         match cfg.model.kind() {
-            InverseModelKind::FaceBand { sigma_mm } => Some(Band {
-                sigma_mm: sigma_mm.max(1),
-                reach_mm: sigma_mm.saturating_mul(u32::from(FACE_BAND_REACH_EIGHTHS)) / 8,
-            }),
+            InverseModelKind::FaceBand { sigma_mm } => {
+                let sigma_mm = sigma_mm.max(1);
+                let reach_mm = sigma_mm.saturating_mul(u32::from(FACE_BAND_REACH_EIGHTHS)) / 8;
+                Some(Band {
+                    sigma_mm,
+                    reach_mm,
+                    // 8·reach/σ ≤ 12, in Q16.
+                    reach_t: ((u64::from(reach_mm) << 19) / u64::from(sigma_mm)) as i64,
+                })
+            }
             _ => None,
         }
     }
@@ -288,19 +307,112 @@ impl Band {
         // Saturating: only absurd rays come near the u64 range.
         before.saturating_mul(n).div_ceil(u64::from(traced.max(1)))
     }
+}
 
-    /// Step `k`'s offset past the reading in eighths of σ, rounded, clamped to the band.
-    fn eighths(&self, k: u64, range: u32, traced: u32, n: u64) -> i8 {
-        // Rays of more than 2^24 steps (a pose millions of cells off the grid) are scaled down
-        // so that everything below fits an i64: 16·past < 2^61, 2·den < 2^58.
-        let shift = (64 - n.leading_zeros()).saturating_sub(24);
-        let (k, n) = ((k >> shift) as i64, ((n >> shift) as i64).max(1));
-        // mm past the reading, times n.
-        let past = k * i64::from(traced) - i64::from(range) * n;
-        let den = i64::from(self.sigma_mm) * n;
-        let t8 = (16 * past + if past >= 0 { den } else { -den }) / (2 * den);
-        let r = i64::from(FACE_BAND_REACH_EIGHTHS);
-        t8.clamp(-r, r) as i8
+/// One reading's face band on its ray: the band's steps in the grid, and the offset past the
+/// reading, in eighths of σ, of each.
+struct BandRay {
+    ray: Ray,
+    end: CellCoord,
+    steps: Steps,
+    /// Offset of `steps.first` in eighths of σ, Q16.
+    t0: i64,
+    /// Offset of one step in eighths of σ, Q16 (≤ 2^21).
+    dt: i64,
+}
+
+impl BandRay {
+    /// Step `k`'s (`k ≥ steps.first`) offset past the reading in eighths of σ, rounded half
+    /// away from zero, clamped to the band: one multiply-add per cell, no division.
+    #[inline]
+    fn eighths(&self, k: u64) -> i8 {
+        // Fewer than 2^20 in-grid steps (the grid is under 2^16 cells a side), dt ≤ 2^21 and
+        // |t0| ≤ 2^41: no overflow.
+        let j = k.saturating_sub(self.steps.first).min(1 << 20) as i64;
+        let t = self.t0 + j * self.dt;
+        let r = ((t.unsigned_abs() + (1 << 15)) >> 16).min(u64::from(FACE_BAND_REACH_EIGHTHS));
+        // r ≤ 12.
+        if t < 0 {
+            -(r as i8)
+        } else {
+            r as i8
+        }
+    }
+}
+
+/// A scan's rays from the pose's cell: where a beam's ray ends and which of its steps lie in
+/// the grid. One home for the classification and the fast pass, so the two agree.
+struct Rays<'a> {
+    g: &'a GridGeometry,
+    pose: &'a Pose,
+    to_cell: PointToCell,
+    origin: CellCoord,
+    origin_inside: bool,
+}
+
+impl<'a> Rays<'a> {
+    fn new(g: &'a GridGeometry, pose: &'a Pose) -> Self {
+        let to_cell = PointToCell::new(g);
+        let origin = to_cell.cell(i64::from(pose.x_mm), i64::from(pose.y_mm));
+        Rays {
+            g,
+            pose,
+            to_cell,
+            origin,
+            origin_inside: g.contains(origin),
+        }
+    }
+
+    /// The cell `range` mm from the pose along `angle`. Out of line: called once per beam, and
+    /// its sine lookups and divisions would otherwise be copied into every pass.
+    #[inline(never)]
+    fn end(&self, range: u32, angle: Angle) -> CellCoord {
+        let (x, y) = self.pose.beam_end(angle, range);
+        self.to_cell.cell(x, y)
+    }
+
+    /// The ray to `end` and its steps in the grid, if any.
+    #[inline]
+    fn in_grid(&self, end: CellCoord) -> Option<(Ray, Steps)> {
+        let ray = Ray::new(self.origin, end);
+        // Both ends inside: the whole ray is (what `clip` would find, without its arithmetic).
+        let steps = if self.origin_inside && self.g.contains(end) {
+            Steps {
+                first: 0,
+                last: ray.steps(),
+            }
+        } else {
+            ray.clip(self.g.width(), self.g.height())?
+        };
+        Some((ray, steps))
+    }
+
+    /// The face band of a reading at `range` mm along `angle`, if any of it is in the grid.
+    #[inline(never)]
+    fn band(&self, b: Band, range: u32, angle: Angle) -> Option<BandRay> {
+        let traced = range.saturating_add(b.reach_mm);
+        let end = self.end(traced, angle);
+        let (ray, mut steps) = self.in_grid(end)?;
+        let n = ray.steps();
+        steps.first = steps.first.max(b.first_step(range, traced, n));
+        if steps.first > steps.last {
+            return None;
+        }
+        // In eighths of σ (Q16): the ray's end lies 8·reach/σ past the reading and each step
+        // 8·traced/(σ·n) after the one before, so step k lies (n − k) steps before the end.
+        let den = u64::from(b.sigma_mm).saturating_mul(n.max(1));
+        let dt = ((u64::from(traced) << 19) / den).min(1 << 21);
+        let back = n
+            .saturating_sub(steps.first)
+            .saturating_mul(dt)
+            .min(1 << 41);
+        Some(BandRay {
+            ray,
+            end,
+            steps,
+            t0: b.reach_t - back as i64,
+            dt: dt as i64,
+        })
     }
 }
 
@@ -372,28 +484,9 @@ fn classify_beam(
 ) -> ScanStats {
     let mut stats = ScanStats::default();
     let mut marks = Marks::new(marks);
-    let to_cell = PointToCell::new(g);
-    let origin = to_cell.cell(i64::from(pose.x_mm), i64::from(pose.y_mm));
-    let end_cell = |range: u32, angle: Angle| {
-        let (x, y) = pose.beam_end(angle, range);
-        to_cell.cell(x, y)
-    };
+    let rays = Rays::new(g, pose);
     let (width, height) = (g.width(), g.height());
-    let w = usize::from(width);
-    let max_row = i32::from(height) - 1;
-    let origin_inside = g.contains(origin);
     let band = Band::of(cfg);
-    // The steps of a ray that lie in the grid.
-    let in_grid = |ray: &Ray, end: CellCoord| {
-        if origin_inside && g.contains(end) {
-            Some(Steps {
-                first: 0,
-                last: ray.steps(),
-            })
-        } else {
-            ray.clip(width, height)
-        }
-    };
     // Pass 1: hits (the end cell, or the face band).
     for beam in beams {
         let Some((range, hit)) = beam_extent(cfg, beam) else {
@@ -404,7 +497,7 @@ fn classify_beam(
         match band {
             _ if !hit => {}
             None => {
-                if let Some(i) = g.index(end_cell(range, beam.angle)) {
+                if let Some(i) = g.index(rays.end(range, beam.angle)) {
                     if Marks::first_touch(marks.words, i) {
                         marks.cover(i, i);
                         stats.cells_hit += 1;
@@ -413,28 +506,17 @@ fn classify_beam(
                 }
             }
             Some(b) => {
-                let traced = Band::traced(band, range, true);
-                let end = end_cell(traced, beam.angle);
-                let ray = Ray::new(origin, end);
-                let n = ray.steps();
-                let Some(mut steps) = in_grid(&ray, end) else {
+                let Some(face) = rays.band(b, range, beam.angle) else {
                     continue;
                 };
-                steps.first = steps.first.max(b.first_step(range, traced, n));
-                if steps.first > steps.last {
-                    continue;
-                }
                 let words = &mut *marks.words;
-                ray.for_each_index(steps, width, |k, i| {
+                face.ray.for_each_index(face.steps, width, |k, i| {
                     if Marks::first_touch(words, i) {
                         stats.cells_hit += 1;
-                        sink(i, CellUpdate::Face(b.eighths(k, range, traced, n)));
+                        sink(i, CellUpdate::Face(face.eighths(k)));
                     }
                 });
-                let (y0, y1) = (origin.y.min(end.y).max(0), origin.y.max(end.y).min(max_row));
-                if y0 <= y1 {
-                    marks.cover(y0 as usize * w, y1 as usize * w + (w - 1));
-                }
+                marks.cover_rows(rays.origin, face.end, width, height);
             }
         }
     }
@@ -447,10 +529,8 @@ fn classify_beam(
             continue;
         };
         let traced = Band::traced(band, range, hit);
-        let end = end_cell(traced, beam.angle);
-        let ray = Ray::new(origin, end);
-        // Both ends inside: the whole ray is (what `clip` would find, without its arithmetic).
-        let Some(mut steps) = in_grid(&ray, end) else {
+        let end = rays.end(traced, beam.angle);
+        let Some((ray, mut steps)) = rays.in_grid(end) else {
             continue;
         };
         if let (Some(b), true) = (band, hit) {
@@ -488,11 +568,7 @@ fn classify_beam(
                 });
             }
         }
-        // The ray's cells lie in the rows between its end cells, and in the grid.
-        let (y0, y1) = (origin.y.min(end.y).max(0), origin.y.max(end.y).min(max_row));
-        if y0 <= y1 {
-            marks.cover(y0 as usize * w, y1 as usize * w + (w - 1));
-        }
+        marks.cover_rows(rays.origin, end, width, height);
     }
     stats.cells_freed = freed;
     stats
@@ -706,14 +782,8 @@ fn insert_beam_model<const REPORT: bool>(
     on_update: &mut impl FnMut(usize, LogOdds, LogOdds),
 ) -> ScanStats {
     let mut stats = ScanStats::default();
-    let to_cell = PointToCell::new(g);
-    let origin = to_cell.cell(i64::from(pose.x_mm), i64::from(pose.y_mm));
-    let end_cell = |range: u32, angle: Angle| {
-        let (x, y) = pose.beam_end(angle, range);
-        to_cell.cell(x, y)
-    };
+    let rays = Rays::new(g, pose);
     let (width, height) = (g.width(), g.height());
-    let origin_inside = g.contains(origin);
     let mut hits = [NO_CELL; HIT_TABLE];
     let mut n_hits = 0usize;
     let mut area = ScanBox::empty();
@@ -725,7 +795,7 @@ fn insert_beam_model<const REPORT: bool>(
             continue;
         };
         stats.beams_used += 1;
-        let end = end_cell(Band::traced(band, range, hit), beam.angle);
+        let end = rays.end(Band::traced(band, range, hit), beam.angle);
         if hit {
             if let Some(slot) = hits.get_mut(n_hits) {
                 // In-grid indices are < 2^32 − 1 (see NO_CELL).
@@ -733,18 +803,8 @@ fn insert_beam_model<const REPORT: bool>(
             }
             n_hits += 1;
         }
-        let ray = Ray::new(origin, end);
-        // Both ends inside: the whole ray is (what `clip` would find, without its arithmetic).
-        let steps = if origin_inside && g.contains(end) {
-            Steps {
-                first: 0,
-                last: ray.steps(),
-            }
-        } else {
-            match ray.clip(width, height) {
-                Some(steps) => steps,
-                None => continue,
-            }
+        let Some((ray, steps)) = rays.in_grid(end) else {
+            continue;
         };
         match ray.index_walk(steps, width) {
             Some(walk) => walk.mark_all(marks),
@@ -754,7 +814,7 @@ fn insert_beam_model<const REPORT: bool>(
                 }
             }),
         }
-        area.cover(origin, end);
+        area.cover(rays.origin, end);
     }
     // Pass 2: hits, in beam order; each in-grid hit cell's bit was set by its own ray. With the
     // face band, each hit's band cells, in beam order (set by its own ray too).
@@ -764,29 +824,17 @@ fn insert_beam_model<const REPORT: bool>(
             let Some((range, true)) = beam_extent(cfg, beam) else {
                 continue;
             };
-            let traced = Band::traced(band, range, true);
-            let end = end_cell(traced, beam.angle);
-            let ray = Ray::new(origin, end);
-            let n = ray.steps();
-            let steps = if origin_inside && g.contains(end) {
-                Some(Steps { first: 0, last: n })
-            } else {
-                ray.clip(width, height)
-            };
-            let Some(mut steps) = steps else { continue };
-            steps.first = steps.first.max(b.first_step(range, traced, n));
-            if steps.first > steps.last {
+            let Some(band) = rays.band(b, range, beam.angle) else {
                 continue;
-            }
-            ray.for_each_index(steps, width, |k, i| {
+            };
+            band.ray.for_each_index(band.steps, width, |k, i| {
                 let (w, bit) = (i / 32, 1u32 << (i % 32));
                 if let (Some(word), Some(cell)) = (marks.get_mut(w), cells.get_mut(i)) {
                     if *word & bit != 0 {
                         *word &= !bit;
                         let before = *cell;
-                        let t8 = i32::from(b.eighths(k, range, traced, n));
-                        let j = (t8 + FACE_REACH).clamp(0, 2 * FACE_REACH) as usize;
-                        *cell = update.apply(before, face.get(j).copied().unwrap_or(0));
+                        let j = i32::from(band.eighths(k)) + FACE_REACH;
+                        *cell = update.apply(before, face.get(j as usize).copied().unwrap_or(0));
                         stats.cells_hit += 1;
                         on_update(i, before, *cell);
                     }
@@ -802,7 +850,7 @@ fn insert_beam_model<const REPORT: bool>(
         let index = match hits.get(k) {
             Some(&NO_CELL) => None,
             Some(&i) => Some(i as usize),
-            None => g.index(end_cell(range, beam.angle)),
+            None => g.index(rays.end(range, beam.angle)),
         };
         k += 1;
         let Some(i) = index else { continue };
