@@ -61,6 +61,7 @@ enum Item {
         fixed_poses: bool,
         /// `Some`: an RPLIDAR with this sample period (0 is refused), else an LD06.
         rplidar_sample_us: Option<u16>,
+        face_band: bool,
     },
     PaperConfig {
         origin_x_mm: i16,
@@ -166,6 +167,7 @@ fuzz_target!(|items: Vec<Item>| {
                 mount_yaw,
                 fixed_poses,
                 rplidar_sample_us,
+                face_band,
             } => frame(
                 &mut bytes,
                 &HostMsg::Config(RunConfig {
@@ -221,6 +223,7 @@ fuzz_target!(|items: Vec<Item>| {
                         Some(sample_us) => LidarModel::Rplidar { sample_us },
                         None => LidarModel::Ld06,
                     },
+                    face_band,
                 }),
             ),
             Item::PaperConfig {
