@@ -98,6 +98,77 @@ pub enum CellUpdate {
     Face(i8),
 }
 
+/// Which changes an [`UpdateListener`] hears through [`UpdateListener::changed`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reports {
+    /// None (the mapper alone: a 64-bit host may then free a word's cells lane-wise).
+    Nothing,
+    /// Only the notable ones ([`notable`]); the cells that change at all arrive beforehand as
+    /// mark words ([`UpdateListener::marked_word`]).
+    Notable,
+    /// Every one.
+    Every,
+}
+
+/// Whether a change of a cell from `before` to `after` is notable: the cell was unobserved
+/// (`before` = 0) or the sign of its evidence flipped. The online sampler seeds such cells and
+/// restarts their estimates; every other change only marks its tile.
+#[inline(always)]
+pub fn notable(before: LogOdds, after: LogOdds) -> bool {
+    before.0 == 0 || (before.0 > 0) != (after.0 > 0)
+}
+
+/// Who hears about a scan's updates ([`Mapper::insert_scan_into`]). Each cell changes at most
+/// once per scan: with the beam model first the hit (and face band) cells in beam order, then
+/// the freed cells in increasing index order; with the cone model in [`classify_scan`]'s order.
+///
+/// Why not a closure per cell: the online sampler needs every changed cell's *tile* but the
+/// values of only a few cells; with [`Reports::Notable`] it learns the tiles from the scan's mark
+/// words (a few tiles per word) and the values of the notable cells, which saves the Cortex-M4
+/// about a fifth of its per-scan step (docs/benchmarks.md).
+pub trait UpdateListener {
+    /// Which changes [`UpdateListener::changed`] hears.
+    const REPORTS: Reports;
+    /// Cell `index` changed from `before` to `after` (which cells: [`UpdateListener::REPORTS`]).
+    fn changed(&mut self, index: usize, before: LogOdds, after: LogOdds);
+    /// With [`Reports::Notable`], once per non-zero mark word of the scan after marking and
+    /// before any update: the cells `32·word + b`, for each bit `b` set in `bits`, are the
+    /// ones this scan changes (together with the other words' cells).
+    fn marked_word(&mut self, word: usize, bits: u32);
+}
+
+/// The mapper alone: nobody listens.
+impl UpdateListener for () {
+    const REPORTS: Reports = Reports::Nothing;
+    #[inline(always)]
+    fn changed(&mut self, _: usize, _: LogOdds, _: LogOdds) {}
+    #[inline(always)]
+    fn marked_word(&mut self, _: usize, _: u32) {}
+}
+
+/// A closure that hears every changed cell ([`Mapper::insert_scan_with`]).
+struct EachCell<F>(F);
+
+impl<F: FnMut(usize, LogOdds, LogOdds)> UpdateListener for EachCell<F> {
+    const REPORTS: Reports = Reports::Every;
+    #[inline(always)]
+    fn changed(&mut self, index: usize, before: LogOdds, after: LogOdds) {
+        (self.0)(index, before, after)
+    }
+    #[inline(always)]
+    fn marked_word(&mut self, _: usize, _: u32) {}
+}
+
+/// Whether `listener` hears the change of a cell from `before` to `after`.
+#[inline(always)]
+fn hears<L: UpdateListener>(before: LogOdds, after: LogOdds) -> bool {
+    match L::REPORTS {
+        Reports::Nothing => false,
+        Reports::Notable => notable(before, after),
+        Reports::Every => true,
+    }
+}
+
 /// Words of scan-mark bitset needed for `cells` cells.
 pub const fn marks_len(cells: usize) -> usize {
     cells.div_ceil(32)
@@ -771,7 +842,7 @@ const NO_CELL: u32 = u32::MAX;
 /// walked cell, where rays overlap near the robot, was most of the old cost) and a cell is
 /// updated where the sweep finds it rather than through a queue.
 #[allow(clippy::too_many_arguments)]
-fn insert_beam_model<const REPORT: bool>(
+fn insert_beam_model<L: UpdateListener>(
     g: &GridGeometry,
     cfg: &MapperConfig,
     pose: &Pose,
@@ -779,7 +850,7 @@ fn insert_beam_model<const REPORT: bool>(
     marks: &mut [u32],
     cells: &mut [LogOdds],
     update: Update,
-    on_update: &mut impl FnMut(usize, LogOdds, LogOdds),
+    listener: &mut L,
 ) -> ScanStats {
     let mut stats = ScanStats::default();
     let rays = Rays::new(g, pose);
@@ -816,6 +887,17 @@ fn insert_beam_model<const REPORT: bool>(
         }
         area.cover(rays.origin, end);
     }
+    // The listener learns which cells will change from the marks, before passes 2-3 clear them.
+    if L::REPORTS == Reports::Notable {
+        box_words(&area, width, height, |first, last| {
+            let words = marks.get(first..=last).unwrap_or(&[]);
+            for (k, &bits) in words.iter().enumerate() {
+                if bits != 0 {
+                    listener.marked_word(first + k, bits);
+                }
+            }
+        });
+    }
     // Pass 2: hits, in beam order; each in-grid hit cell's bit was set by its own ray. With the
     // face band, each hit's band cells, in beam order (set by its own ray too).
     if let Some(b) = band {
@@ -836,7 +918,9 @@ fn insert_beam_model<const REPORT: bool>(
                         let j = i32::from(band.eighths(k)) + FACE_REACH;
                         *cell = update.apply(before, face.get(j as usize).copied().unwrap_or(0));
                         stats.cells_hit += 1;
-                        on_update(i, before, *cell);
+                        if hears::<L>(before, *cell) {
+                            listener.changed(i, before, *cell);
+                        }
                     }
                 }
             });
@@ -861,32 +945,44 @@ fn insert_beam_model<const REPORT: bool>(
                 let before = *cell;
                 *cell = update.apply(before, update.occ);
                 stats.cells_hit += 1;
-                on_update(i, before, *cell);
+                if hears::<L>(before, *cell) {
+                    listener.changed(i, before, *cell);
+                }
             }
         }
     }
     // Pass 3: free what is left, clearing the marks.
+    box_words(&area, width, height, |first, last| {
+        stats.cells_freed += free_words(marks, first, last, cells, update, listener);
+    });
+    stats
+}
+
+/// Calls `f(first, last)` for each row of `area` (clipped to the grid), with the range of mark
+/// words that hold the row's part of the box, less any word the previous row's range ended in:
+/// each word of the box once, in increasing order.
+#[inline(always)]
+fn box_words(area: &ScanBox, width: u16, height: u16, mut f: impl FnMut(usize, usize)) {
     let max_x = i32::from(width) - 1;
     let max_y = i32::from(height) - 1;
     let (x0, x1) = (area.x0.max(0), area.x1.min(max_x));
     let (y0, y1) = (area.y0.max(0), area.y1.min(max_y));
-    if x0 <= x1 && y0 <= y1 {
-        // All four lie in the grid now, so these are in-grid cell indices.
-        let w = usize::from(width);
-        let (x0, x1) = (x0 as usize, x1 as usize);
-        let mut next = 0usize;
-        for y in y0 as usize..=y1 as usize {
-            // Words of this row's part of the box, less any the previous row's part ended in.
-            let first = ((y * w + x0) / 32).max(next);
-            let last = (y * w + x1) / 32;
-            if first > last {
-                continue;
-            }
-            stats.cells_freed += free_words::<REPORT>(marks, first, last, cells, update, on_update);
-            next = last + 1;
-        }
+    if x0 > x1 || y0 > y1 {
+        return;
     }
-    stats
+    // All four lie in the grid now, so these are in-grid cell indices.
+    let w = usize::from(width);
+    let (x0, x1) = (x0 as usize, x1 as usize);
+    let mut next = 0usize;
+    for y in y0 as usize..=y1 as usize {
+        let first = ((y * w + x0) / 32).max(next);
+        let last = (y * w + x1) / 32;
+        if first > last {
+            continue;
+        }
+        f(first, last);
+        next = last + 1;
+    }
 }
 
 /// Whether the sweep updates a word's 32 cells lane-wise ([`Update::free_lanes`]) when nobody
@@ -895,15 +991,15 @@ fn insert_beam_model<const REPORT: bool>(
 const LANE_SWEEP: bool = cfg!(target_pointer_width = "64");
 
 /// Frees the cells whose bits are set in `marks[first..=last]`, in increasing index order, and
-/// clears those words; returns how many cells it freed. `REPORT`: call `on_update` for each.
+/// clears those words; returns how many cells it freed, and tells `listener` (see [`Reports`]).
 #[inline(always)]
-fn free_words<const REPORT: bool>(
+fn free_words<L: UpdateListener>(
     marks: &mut [u32],
     first: usize,
     last: usize,
     cells: &mut [LogOdds],
     update: Update,
-    on_update: &mut impl FnMut(usize, LogOdds, LogOdds),
+    listener: &mut L,
 ) -> u32 {
     let mut freed = 0u32;
     let Some(words) = marks.get_mut(first..=last) else {
@@ -916,7 +1012,7 @@ fn free_words<const REPORT: bool>(
         let mut bits = core::mem::take(word);
         // The words of in-grid cells: base + 31 < 2^32 · 32, no overflow.
         let base = (first + k) * 32;
-        if LANE_SWEEP && !REPORT {
+        if LANE_SWEEP && L::REPORTS == Reports::Nothing {
             // A whole word of cells (all but possibly the grid's last word).
             let lanes = cells
                 .get_mut(base..base + 32)
@@ -933,9 +1029,12 @@ fn free_words<const REPORT: bool>(
             bits &= bits - 1;
             if let Some(cell) = cells.get_mut(i) {
                 let before = *cell;
-                *cell = update.apply(before, update.free);
+                let after = update.apply(before, update.free);
+                *cell = after;
                 freed += 1;
-                on_update(i, before, *cell);
+                if hears::<L>(before, after) {
+                    listener.changed(i, before, after);
+                }
             }
         }
     }
@@ -975,14 +1074,13 @@ where
 
     /// Integrates one scan taken at `pose`.
     pub fn insert_scan(&mut self, pose: &Pose, beams: &[Beam]) -> Result<ScanStats> {
-        self.insert::<false>(pose, beams, |_, _, _| {})
+        self.insert_scan_into(pose, beams, &mut ())
     }
 
     /// [`Mapper::insert_scan`] that also reports every cell it changes as
     /// `on_update(index, before, after)`, each cell exactly once per scan: with the beam model
     /// first the hit cells in beam order, then the freed cells in increasing index order; with
-    /// the cone model in [`classify_scan`]'s order. The sampler uses it to seed cells the moment
-    /// they are first observed (`before == 0`).
+    /// the cone model in [`classify_scan`]'s order.
     #[inline]
     pub fn insert_scan_with(
         &mut self,
@@ -990,17 +1088,17 @@ where
         beams: &[Beam],
         on_update: impl FnMut(usize, LogOdds, LogOdds),
     ) -> Result<ScanStats> {
-        self.insert::<true>(pose, beams, on_update)
+        self.insert_scan_into(pose, beams, &mut EachCell(on_update))
     }
 
-    /// Both of the above; `REPORT = false` promises that `on_update` does nothing, so the free
-    /// updates may skip it.
+    /// [`Mapper::insert_scan`] that tells `listener` what it changes (see [`UpdateListener`]).
+    /// The online sampler listens this way ([`crate::pipeline::insert_and_seed`]).
     #[inline]
-    fn insert<const REPORT: bool>(
+    pub fn insert_scan_into<L: UpdateListener>(
         &mut self,
         pose: &Pose,
         beams: &[Beam],
-        mut on_update: impl FnMut(usize, LogOdds, LogOdds),
+        listener: &mut L,
     ) -> Result<ScanStats> {
         let Mapper {
             grid,
@@ -1019,15 +1117,8 @@ where
                         actual: marks.len(),
                     });
                 }
-                Ok(insert_beam_model::<REPORT>(
-                    &geometry,
-                    config,
-                    pose,
-                    beams,
-                    marks,
-                    cells,
-                    update,
-                    &mut on_update,
+                Ok(insert_beam_model(
+                    &geometry, config, pose, beams, marks, cells, update, listener,
                 ))
             }
             InverseModelKind::Cone { .. } => {
@@ -1038,10 +1129,17 @@ where
                         // Only the face band's classification reports these.
                         CellUpdate::Face(t8) => face_band_delta(update.occ, update.free, t8),
                     };
-                    if let Some(cell) = cells.get_mut(i) {
-                        let before = *cell;
-                        *cell = update.apply(before, delta);
-                        on_update(i, before, *cell);
+                    let Some(cell) = cells.get_mut(i) else {
+                        return;
+                    };
+                    let before = *cell;
+                    let after = update.apply(before, delta);
+                    *cell = after;
+                    if L::REPORTS == Reports::Notable {
+                        listener.marked_word(i / 32, 1 << (i % 32));
+                    }
+                    if hears::<L>(before, after) {
+                        listener.changed(i, before, after);
                     }
                 })
             }
@@ -1154,8 +1252,30 @@ mod tests {
         (calls, stats)
     }
 
-    /// Inserts `scans` (the pose moving a little between them) with `insert_scan_with` and
-    /// `insert_scan` into maps that start from `start` repeated (values outside the clamp
+    /// A [`Reports::Notable`] listener that records what it hears.
+    #[derive(Default)]
+    struct Heard {
+        marked: Vec<usize>,
+        notable: Vec<(usize, LogOdds, LogOdds)>,
+    }
+
+    impl UpdateListener for Heard {
+        const REPORTS: Reports = Reports::Notable;
+        fn changed(&mut self, index: usize, before: LogOdds, after: LogOdds) {
+            self.notable.push((index, before, after));
+        }
+        fn marked_word(&mut self, word: usize, bits: u32) {
+            assert_ne!(bits, 0, "word {word}");
+            self.marked.extend(
+                (0..32)
+                    .filter(|b| bits & (1 << b) != 0)
+                    .map(|b| 32 * word + b),
+            );
+        }
+    }
+
+    /// Inserts `scans` (the pose moving a little between them) with `insert_scan_with`,
+    /// `insert_scan_into` (a [`Reports::Notable`] listener) and `insert_scan` into maps that start from `start` repeated (values outside the clamp
     /// included) and checks them against `classify_scan` applied with `Clamp::apply`: the same
     /// hits in the same order, the same freed cells in increasing index order, the same
     /// statistics, the same map, bit for bit, scan after scan; and the marks left zeroed.
@@ -1173,7 +1293,8 @@ mod tests {
         let mut mapper =
             Mapper::new(grid.clone(), vec![0u32; marks_len(g.len()) + 1], cfg).unwrap();
         // `insert_scan` takes the lane-wise sweep on 64-bit hosts.
-        let mut quiet = Mapper::new(grid, vec![0u32; marks_len(g.len())], cfg).unwrap();
+        let mut quiet = Mapper::new(grid.clone(), vec![0u32; marks_len(g.len())], cfg).unwrap();
+        let mut listened = Mapper::new(grid, vec![0u32; marks_len(g.len())], cfg).unwrap();
         let mut want = cells;
         let mut marks = vec![0u32; marks_len(g.len())];
         for (k, beams) in scans.iter().enumerate() {
@@ -1206,6 +1327,25 @@ mod tests {
             .unwrap();
             prop_assert_eq!(stats, want_stats);
             prop_assert_eq!(quiet.insert_scan(&pose, beams).unwrap(), want_stats);
+            let mut heard = Heard::default();
+            prop_assert_eq!(
+                listened.insert_scan_into(&pose, beams, &mut heard).unwrap(),
+                want_stats
+            );
+            // `Reports::Notable`: the mark words name exactly the changed cells, each once,
+            // and only the notable changes are heard, in the same order.
+            let mut changed: Vec<usize> = got.iter().map(|c| c.0).collect();
+            changed.sort_unstable();
+            heard.marked.sort_unstable();
+            prop_assert_eq!(&heard.marked, &changed);
+            let notables: Vec<_> = got
+                .iter()
+                .copied()
+                .filter(|&(_, before, after)| notable(before, after))
+                .collect();
+            prop_assert_eq!(&heard.notable, &notables);
+            prop_assert_eq!(listened.grid().cells(), &want[..]);
+            prop_assert!(listened.marks.iter().all(|&w| w == 0));
             let hits = (stats.cells_hit as usize).min(got.len());
             let want_hits: Vec<_> = expected
                 .iter()

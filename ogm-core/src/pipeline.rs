@@ -114,18 +114,14 @@ where
     L: AsRef<[crate::gibbs::LocalRay]> + AsMut<[crate::gibbs::LocalRay]>,
     K: AsRef<[u32]> + AsMut<[u32]>,
 {
-    let threshold = gibbs.config().init_threshold;
-    let notify = gibbs.config().hot_share > 0 || gibbs.config().estimator.resets();
-    let mut seeded = false;
-    let stats = mapper.insert_scan_with(pose, beams, |i, before, after| {
-        if before.0 == 0 {
-            gibbs.seed(i, after > threshold);
-            seeded = true;
-        }
-        if notify {
-            gibbs.note_changed(i, before, after);
-        }
-    })?;
+    let mut seeder = Seeder {
+        threshold: gibbs.config().init_threshold,
+        notify: gibbs.config().hot_share > 0 || gibbs.config().estimator.resets(),
+        gibbs: &mut *gibbs,
+        seeded: false,
+    };
+    let stats = mapper.insert_scan_into(pose, beams, &mut seeder)?;
+    let seeded = seeder.seeded;
     if !gibbs.config().data.uses_rays() {
         return Ok((stats, 0..0));
     }
@@ -133,4 +129,44 @@ where
     let stale = if seeded { 0..usize::MAX } else { new.clone() };
     gibbs.invalidate_rays(store, stale);
     Ok((stats, new))
+}
+
+/// [`insert_and_seed`]'s listener: marks the tiles of the scan's cells from its mark words,
+/// seeds first-observed cells and restarts the estimates of the notable ones.
+struct Seeder<'a, P, B, C, L, K, N> {
+    gibbs: &'a mut crate::gibbs::Gibbs<P, B, C, L, K, N>,
+    threshold: crate::LogOdds,
+    /// Whether the sampler hears of changes at all (change-driven visits or estimate restarts).
+    notify: bool,
+    seeded: bool,
+}
+
+impl<P, B, C, L, K, N> crate::mapper::UpdateListener for Seeder<'_, P, B, C, L, K, N>
+where
+    P: crate::gibbs::PatchPrior,
+    N: crate::gibbs::Count,
+    B: AsRef<[u32]> + AsMut<[u32]>,
+    C: AsRef<[N]> + AsMut<[N]>,
+    L: AsRef<[crate::gibbs::LocalRay]> + AsMut<[crate::gibbs::LocalRay]>,
+    K: AsRef<[u32]> + AsMut<[u32]>,
+{
+    const REPORTS: crate::mapper::Reports = crate::mapper::Reports::Notable;
+
+    #[inline(always)]
+    fn changed(&mut self, index: usize, before: crate::LogOdds, after: crate::LogOdds) {
+        if before.0 == 0 {
+            self.gibbs.seed(index, after > self.threshold);
+            self.seeded = true;
+        }
+        if self.notify {
+            self.gibbs.note_estimate(index, before, after);
+        }
+    }
+
+    #[inline(always)]
+    fn marked_word(&mut self, word: usize, bits: u32) {
+        if self.notify {
+            self.gibbs.note_marked_word(word, bits);
+        }
+    }
 }

@@ -932,53 +932,96 @@ where
     #[inline]
     pub fn note_changed(&mut self, index: usize, before: LogOdds, now: LogOdds) {
         let (lo, hi) = self.hot_span;
-        let in_span = lo <= index && index <= hi;
-        // Marks also restart the tile's age, which lengthening estimates read.
-        let marks = self.config.hot_share > 0 || self.config.estimator.lengthens();
-        if marks && in_span {
-            // The span's promise: this cell's tile is marked.
-            #[cfg(debug_assertions)]
-            {
-                let (tx, ty, _) = self.tile_of(index);
-                debug_assert!(
-                    self.hot.is_marked(tx, ty),
-                    "cell {index}: tile ({tx}, {ty})"
-                );
-            }
-        } else if marks {
-            let (tx, ty, (x, y)) = self.tile_of(index);
-            self.hot.mark(tx, ty);
-            // The columns of row y in tile column tx (the first and last tile columns also
-            // take the margins outside the sampled area).
-            let (w, s) = (
-                u32::from(self.geometry.width()),
-                u32::from(self.config.tile_shift),
-            );
-            let x_lo = if tx == 0 {
-                0
-            } else {
-                (self.cx0 as u32).saturating_add(tx << s)
-            };
-            let x_hi = if tx + 1 >= self.tiles_x {
-                w.saturating_sub(1)
-            } else {
-                (self.cx0 as u32)
-                    .saturating_add((tx + 1) << s)
-                    .saturating_sub(1)
-                    .min(w.saturating_sub(1))
-            };
-            debug_assert!(
-                x_lo <= x && x <= x_hi,
-                "cell {index}: {x} not in {x_lo}..={x_hi}"
-            );
-            let row = (y * w) as usize;
-            self.hot_span = (row + x_lo as usize, row + x_hi as usize);
+        if self.marks_tiles() && !(lo <= index && index <= hi) {
+            let (first, last, _) = self.mark_tile_of(index);
+            self.hot_span = (first, last);
         }
-        if self.config.estimator.resets() && (before.0 == 0 || (before.0 > 0) != (now.0 > 0)) {
+        // The span's promise: this cell's tile is marked.
+        #[cfg(debug_assertions)]
+        if self.marks_tiles() {
+            let (tx, ty, _) = self.tile_of(index);
+            debug_assert!(
+                self.hot.is_marked(tx, ty),
+                "cell {index}: tile ({tx}, {ty})"
+            );
+        }
+        self.note_estimate(index, before, now);
+    }
+
+    /// The tile part of [`Gibbs::note_changed`] for the cells `32·word + b` of each bit `b` set
+    /// in `bits` (a scan's mark word, [`crate::mapper::UpdateListener::marked_word`]): marks their
+    /// tiles, one tile row segment at a time (a mark word holds at most a few). Their estimates
+    /// are [`Gibbs::note_estimate`]'s, which only the notable changes need
+    /// ([`crate::mapper::notable`]).
+    pub fn note_marked_word(&mut self, word: usize, mut bits: u32) {
+        if !self.marks_tiles() {
+            return;
+        }
+        let base = word.saturating_mul(32);
+        while bits != 0 {
+            let index = base.saturating_add(bits.trailing_zeros() as usize);
+            let (_, last, in_grid) = self.mark_tile_of(index);
+            // Clear the bits of the cells up to `last`, the marked tile's last in this row.
+            let n = last.saturating_sub(base).saturating_add(1);
+            if !in_grid || n >= 32 {
+                break;
+            }
+            bits &= u32::MAX << n;
+        }
+    }
+
+    /// The estimate part of [`Gibbs::note_changed`]: with [`Estimator::Average`]'s
+    /// `reset_on_change`, restarts cell `index`'s estimate at `now`'s probability if the change
+    /// is notable ([`crate::mapper::notable`]).
+    #[inline]
+    pub fn note_estimate(&mut self, index: usize, before: LogOdds, now: LogOdds) {
+        if self.config.estimator.resets() && crate::mapper::notable(before, now) {
             if let Some(c) = self.buf.counts.as_mut().get_mut(index) {
                 *c = N::from_probability_q16(estimate::probability_q16(now));
             }
         }
+    }
+
+    /// Whether changed cells mark their tiles: for change-driven visits, and because marks also
+    /// restart the tile's age, which lengthening estimates read.
+    #[inline]
+    fn marks_tiles(&self) -> bool {
+        self.config.hot_share > 0 || self.config.estimator.lengthens()
+    }
+
+    /// Marks the tile of cell `index` and returns the indices of the first and last cells of the
+    /// tile's part of that cell's row (the first and last tile columns also take the margins
+    /// outside the sampled area), and whether `index` lies in the grid.
+    fn mark_tile_of(&mut self, index: usize) -> (usize, usize, bool) {
+        if index >= self.geometry.len() {
+            return (index, index, false);
+        }
+        let (tx, ty, (x, y)) = self.tile_of(index);
+        self.hot.mark(tx, ty);
+        let (w, s) = (
+            u32::from(self.geometry.width()),
+            u32::from(self.config.tile_shift),
+        );
+        let x_lo = if tx == 0 {
+            0
+        } else {
+            (self.cx0 as u32).saturating_add(tx << s)
+        };
+        let x_hi = if tx + 1 >= self.tiles_x {
+            w.saturating_sub(1)
+        } else {
+            (self.cx0 as u32)
+                .saturating_add((tx + 1) << s)
+                .saturating_sub(1)
+                .min(w.saturating_sub(1))
+        };
+        debug_assert!(
+            x_lo <= x && x <= x_hi,
+            "cell {index}: {x} not in {x_lo}..={x_hi}"
+        );
+        // In the grid: y·w + x_hi < len.
+        let row = (y * w) as usize;
+        (row + x_lo as usize, row + x_hi as usize, true)
     }
 
     /// The sampler tile `(tx, ty)` that cell `index` belongs to (cells in the margin outside the
@@ -2174,5 +2217,52 @@ fn dist_to_interval(v: i32, lo: i32, hi: i32) -> i64 {
         i64::from(v) - i64::from(hi)
     } else {
         0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    type Sampler = Gibbs<BorderPrior, Vec<u32>, Vec<u8>, Vec<LocalRay>, Vec<u32>, u8>;
+
+    fn sampler(g: GridGeometry, tile_shift: u8) -> Sampler {
+        let cfg = SamplerConfig {
+            tile_shift,
+            hot_share: 192,
+            ..SamplerConfig::default()
+        };
+        let buf = Buffers {
+            sample: vec![0; g.len().div_ceil(32)],
+            counts: vec![0; g.len()],
+            local: vec![LocalRay::default(); 1],
+            blocks: vec![0; block_words(1, cfg.block_grid)],
+        };
+        Gibbs::new(g, BorderPrior::default(), ForwardModel::pcsm(), cfg, buf).unwrap()
+    }
+
+    proptest! {
+        /// A mark word's tiles are exactly those its cells would mark one by one.
+        #[test]
+        fn marked_words_mark_the_tiles_of_their_cells(w in 12u16..80, h in 12u16..40,
+                tile_shift in 2u8..6, words in proptest::collection::vec((0usize..120, any::<u32>()), 1..6)) {
+            let g = GridGeometry::new(w, h, 50, 0, 0).unwrap();
+            let (mut by_word, mut by_cell) = (sampler(g, tile_shift), sampler(g, tile_shift));
+            for &(word, bits) in &words {
+                by_word.note_marked_word(word, bits);
+                for i in (0..32).filter(|b| bits & (1 << b) != 0).map(|b| 32 * word + b) {
+                    if i < g.len() {
+                        by_cell.note_changed(i, LogOdds(5), LogOdds(3));
+                    }
+                }
+            }
+            for ty in 0..by_cell.tiles_y {
+                for tx in 0..by_cell.tiles_x {
+                    prop_assert_eq!(by_word.hot.is_marked(tx, ty), by_cell.hot.is_marked(tx, ty),
+                        "tile ({}, {})", tx, ty);
+                }
+            }
+        }
     }
 }

@@ -86,7 +86,7 @@ impl HotTiles {
     }
 
     /// Whether tile `(tx, ty)`'s group is marked.
-    #[cfg(debug_assertions)]
+    #[cfg(any(test, debug_assertions))]
     pub(crate) fn is_marked(&self, tx: u32, ty: u32) -> bool {
         let g = self.group(tx, ty);
         g < self.groups
