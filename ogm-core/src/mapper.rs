@@ -58,13 +58,17 @@ impl MapperConfig {
         }
     }
 
-    /// Checks that the model's increments fit inside the clamp and the range is sane.
+    /// Checks that the model's increments fit inside the clamp and the range is sane (and, in a
+    /// build without the `cone` feature, that the model is not the cone model).
     pub fn validate(&self) -> Result<()> {
         let span = self.clamp.span();
         if self.model.occ_increment().0 > span || self.model.free_increment().0 < -span {
             return Err(Error::InvalidModel);
         }
         if self.max_range_mm == 0 || self.min_range_mm >= self.max_range_mm {
+            return Err(Error::InvalidModel);
+        }
+        if !cfg!(feature = "cone") && matches!(self.model.kind(), InverseModelKind::Cone { .. }) {
             return Err(Error::InvalidModel);
         }
         Ok(())
@@ -115,7 +119,8 @@ pub enum Reports {
 /// restarts their estimates; every other change only marks its tile.
 #[inline(always)]
 pub fn notable(before: LogOdds, after: LogOdds) -> bool {
-    before.0 == 0 || (before.0 > 0) != (after.0 > 0)
+    // v > 0 iff v − 1 ≥ 0 (in i32, no overflow): the signs differ iff the xor is negative.
+    before.0 == 0 || ((i32::from(before.0) - 1) ^ (i32::from(after.0) - 1)) < 0
 }
 
 /// Who hears about a scan's updates ([`Mapper::insert_scan_into`]). Each cell changes at most
@@ -393,6 +398,15 @@ struct BandRay {
 }
 
 impl BandRay {
+    /// The offset of `steps.first` and of one step, in eighths of σ, Q16, as `i32`s: a walk over
+    /// the band adds `dt` per step. On a band `|t0| ≤ 36·2^16` and every step's offset lies in
+    /// `t0 ..= 12·2^16` (`Rays::band`), far inside the `i32` range.
+    #[inline]
+    fn offsets(&self) -> (i32, i32) {
+        let to_i32 = |v: i64| v.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
+        (to_i32(self.t0), to_i32(self.dt))
+    }
+
     /// Step `k`'s (`k ≥ steps.first`) offset past the reading in eighths of σ, rounded half
     /// away from zero, clamped to the band: one multiply-add per cell, no division.
     #[inline]
@@ -408,6 +422,19 @@ impl BandRay {
         } else {
             r as i8
         }
+    }
+}
+
+/// The face table slot (offset in eighths of σ, + R, so `0 ..= 2R`) of an offset `t` in eighths
+/// of σ, Q16: [`BandRay::eighths`]'s rounding and clamp, in 32 bits.
+#[inline(always)]
+fn face_slot(t: i32) -> usize {
+    // |t| ≤ 2^31: no overflow.
+    let r = ((t.unsigned_abs() + (1 << 15)) >> 16).min(FACE_REACH as u32) as usize;
+    if t < 0 {
+        FACE_REACH as usize - r
+    } else {
+        FACE_REACH as usize + r
     }
 }
 
@@ -471,6 +498,7 @@ impl<'a> Rays<'a> {
         }
         // In eighths of σ (Q16): the ray's end lies 8·reach/σ past the reading and each step
         // 8·traced/(σ·n) after the one before, so step k lies (n − k) steps before the end.
+        // From the first step on, (n − first)·dt ≤ 2·reach·2^19/σ ≤ 24·2^16: |t0| ≤ 36·2^16.
         let den = u64::from(b.sigma_mm).saturating_mul(n.max(1));
         let dt = ((u64::from(traced) << 19) / den).min(1 << 21);
         let back = n
@@ -909,21 +937,39 @@ fn insert_beam_model<L: UpdateListener>(
             let Some(band) = rays.band(b, range, beam.angle) else {
                 continue;
             };
-            band.ray.for_each_index(band.steps, width, |k, i| {
+            // Claims band cell `i` at face slot `slot` (its offset in eighths of σ, + R).
+            let mut claim = |i: usize, slot: usize| {
                 let (w, bit) = (i / 32, 1u32 << (i % 32));
                 if let (Some(word), Some(cell)) = (marks.get_mut(w), cells.get_mut(i)) {
                     if *word & bit != 0 {
                         *word &= !bit;
                         let before = *cell;
-                        let j = i32::from(band.eighths(k)) + FACE_REACH;
-                        *cell = update.apply(before, face.get(j as usize).copied().unwrap_or(0));
+                        *cell = update.apply(before, face.get(slot).copied().unwrap_or(0));
                         stats.cells_hit += 1;
                         if hears::<L>(before, *cell) {
                             listener.changed(i, before, *cell);
                         }
                     }
                 }
-            });
+            };
+            match band.ray.index_walk(band.steps, width) {
+                // The offset by one addition per step (no multiply), in registers.
+                Some(mut walk) => {
+                    let (mut t, dt) = band.offsets();
+                    loop {
+                        claim(walk.index(), face_slot(t));
+                        if walk.left() <= 1 {
+                            break;
+                        }
+                        walk.take(1);
+                        walk.advance();
+                        t = t.saturating_add(dt);
+                    }
+                }
+                None => band.ray.for_each_index(band.steps, width, |k, i| {
+                    claim(i, (i32::from(band.eighths(k)) + FACE_REACH) as usize)
+                }),
+            }
         }
     }
     let mut k = 0usize;
@@ -1121,6 +1167,10 @@ where
                     &geometry, config, pose, beams, marks, cells, update, listener,
                 ))
             }
+            // Rejected by `MapperConfig::validate` without the feature.
+            #[cfg(not(feature = "cone"))]
+            InverseModelKind::Cone { .. } => Err(Error::InvalidModel),
+            #[cfg(feature = "cone")]
             InverseModelKind::Cone { .. } => {
                 classify_scan(&geometry, config, pose, beams, marks.as_mut(), |i, u| {
                     let delta = match u {

@@ -596,6 +596,10 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     /// changed cells mostly share a tile, and this spares them the division and the bitset
     /// (empty when `lo > hi`; emptied whenever a visit takes a mark).
     hot_span: (usize, usize),
+    /// The last estimate restart ([`Gibbs::note_estimate`]): the log-odds and the estimate it
+    /// gives. A scan restarts most cells at a few values (all its first-observed free cells at
+    /// the free update), so this spares most restarts the probability lookup.
+    restart: (LogOdds, N),
     /// The estimate's averaging shift on this tile visit ([`Estimator::shift_at`]).
     visit_shift: AverageShift,
     /// The evidence update's candidate weights (only the entries an update wrote are read).
@@ -810,6 +814,10 @@ where
             tiles_y,
             hot: HotTiles::new(tiles_x, tiles_y),
             hot_span: (1, 0),
+            restart: (
+                LogOdds(0),
+                N::from_probability_q16(estimate::probability_q16(LogOdds(0))),
+            ),
             visit_shift: AverageShift::new(config.estimator.shift_at(0)),
             scratch: [0; MAX_CANDIDATES + 1],
             ev_gain: 0,
@@ -954,15 +962,18 @@ where
     /// are [`Gibbs::note_estimate`]'s, which only the notable changes need
     /// ([`crate::mapper::notable`]).
     pub fn note_marked_word(&mut self, word: usize, mut bits: u32) {
-        if !self.marks_tiles() {
+        if !self.marks_tiles() || word >= self.geometry.len().div_ceil(32) {
             return;
         }
-        let base = word.saturating_mul(32);
+        // ≤ len + 31 < 2^32 (a grid has at most 65535² cells): no overflow, and every index
+        // below is at most 31 more.
+        let base = word * 32;
         while bits != 0 {
-            let index = base.saturating_add(bits.trailing_zeros() as usize);
+            let index = base + bits.trailing_zeros() as usize;
             let (_, last, in_grid) = self.mark_tile_of(index);
-            // Clear the bits of the cells up to `last`, the marked tile's last in this row.
-            let n = last.saturating_sub(base).saturating_add(1);
+            // Clear the bits of the cells up to `last` (≥ index), the marked tile's last in
+            // this row.
+            let n = last - base + 1;
             if !in_grid || n >= 32 {
                 break;
             }
@@ -976,8 +987,11 @@ where
     #[inline]
     pub fn note_estimate(&mut self, index: usize, before: LogOdds, now: LogOdds) {
         if self.config.estimator.resets() && crate::mapper::notable(before, now) {
+            if self.restart.0 != now {
+                self.restart = (now, N::from_probability_q16(estimate::probability_q16(now)));
+            }
             if let Some(c) = self.buf.counts.as_mut().get_mut(index) {
-                *c = N::from_probability_q16(estimate::probability_q16(now));
+                *c = self.restart.1;
             }
         }
     }
