@@ -1038,7 +1038,10 @@ const LANE_SWEEP: bool = cfg!(target_pointer_width = "64");
 
 /// Frees the cells whose bits are set in `marks[first..=last]`, in increasing index order, and
 /// clears those words; returns how many cells it freed, and tells `listener` (see [`Reports`]).
-#[inline(always)]
+// Out of line on a 32-bit core, whose registers then hold the sweep's state instead of the
+// whole insertion's; inlined on a 64-bit host (its lane-wise sweep does better inlined).
+#[cfg_attr(target_pointer_width = "32", inline(never))]
+#[cfg_attr(not(target_pointer_width = "32"), inline(always))]
 fn free_words<L: UpdateListener>(
     marks: &mut [u32],
     first: usize,

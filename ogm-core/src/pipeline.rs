@@ -152,7 +152,9 @@ where
 {
     const REPORTS: crate::mapper::Reports = crate::mapper::Reports::Notable;
 
-    #[inline(always)]
+    // Out of line: only notable cells get here, and inlined into the sweep its state would
+    // crowd the sweep's own out of the Cortex-M4's registers.
+    #[inline(never)]
     fn changed(&mut self, index: usize, before: crate::LogOdds, after: crate::LogOdds) {
         if before.0 == 0 {
             self.gibbs.seed(index, after > self.threshold);

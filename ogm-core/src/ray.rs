@@ -460,8 +460,7 @@ impl IndexWalk {
     ///
     /// Without a data-dependent branch: the sign of `g` selects the stride (`major` or
     /// `major + minor`) and the correction of `g` (`2N` or 0), because where a ray's minor steps
-    /// fall is irregular and a deeply pipelined core would mispredict them; the word is clamped
-    /// instead of bounds-checked for the same reason.
+    /// fall is irregular and a deeply pipelined core would mispredict them.
     #[inline(never)]
     fn mark_cells(self, words: &mut [u32]) {
         let IndexWalk {
@@ -474,16 +473,11 @@ impl IndexWalk {
             left,
         } = self;
         let diagonal = major.wrapping_add(minor);
-        let Some(last) = words.len().checked_sub(1) else {
-            return;
-        };
         for _ in 0..left {
-            // Branch-free bounds handling: an index past the end (never, for a walk from
-            // `Ray::clip`) sets nothing, in the last word; the clamped index needs no check.
-            let w = index / 32;
-            let bit = u32::from(w <= last) << (index % 32);
-            if let Some(word) = words.get_mut(w.min(last)) {
-                *word |= bit;
+            // An index past the end (never, for a walk from `Ray::clip`) sets nothing: a branch
+            // that is never taken, fewer instructions than clamping the index.
+            if let Some(word) = words.get_mut(index / 32) {
+                *word |= 1 << (index % 32);
             }
             // g ∈ [−2a, 2N) after the subtraction and back in [0, 2N) after the correction
             // (−1 and 0 for N = 0, whose walk has one cell). The corrected value is computed
