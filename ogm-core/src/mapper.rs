@@ -108,7 +108,7 @@ pub enum Reports {
     /// None (the mapper alone: a 64-bit host may then free a word's cells lane-wise).
     Nothing,
     /// Only the notable ones ([`notable`]); the cells that change at all arrive beforehand as
-    /// mark words ([`UpdateListener::marked_word`]).
+    /// mark words ([`UpdateListener::marked_words`]).
     Notable,
     /// Every one.
     Every,
@@ -136,10 +136,11 @@ pub trait UpdateListener {
     const REPORTS: Reports;
     /// Cell `index` changed from `before` to `after` (which cells: [`UpdateListener::REPORTS`]).
     fn changed(&mut self, index: usize, before: LogOdds, after: LogOdds);
-    /// With [`Reports::Notable`], once per non-zero mark word of the scan after marking and
-    /// before any update: the cells `32·word + b`, for each bit `b` set in `bits`, are the
-    /// ones this scan changes (together with the other words' cells).
-    fn marked_word(&mut self, word: usize, bits: u32);
+    /// With [`Reports::Notable`], after marking and before any update, once per row of the
+    /// scan's box with the row's mark words (some may be 0), `first` being the first one's
+    /// index: the cells `32·(first + k) + b`, for each bit `b` set in `words[k]`, are the ones
+    /// this scan changes (together with the other rows' cells). Each word is passed once.
+    fn marked_words(&mut self, first: usize, words: &[u32]);
 }
 
 /// The mapper alone: nobody listens.
@@ -148,7 +149,7 @@ impl UpdateListener for () {
     #[inline(always)]
     fn changed(&mut self, _: usize, _: LogOdds, _: LogOdds) {}
     #[inline(always)]
-    fn marked_word(&mut self, _: usize, _: u32) {}
+    fn marked_words(&mut self, _: usize, _: &[u32]) {}
 }
 
 /// A closure that hears every changed cell ([`Mapper::insert_scan_with`]).
@@ -161,7 +162,7 @@ impl<F: FnMut(usize, LogOdds, LogOdds)> UpdateListener for EachCell<F> {
         (self.0)(index, before, after)
     }
     #[inline(always)]
-    fn marked_word(&mut self, _: usize, _: u32) {}
+    fn marked_words(&mut self, _: usize, _: &[u32]) {}
 }
 
 /// Whether `listener` hears the change of a cell from `before` to `after`.
@@ -381,7 +382,20 @@ impl Band {
     fn first_step(&self, range: u32, traced: u32, n: u64) -> u64 {
         let before = u64::from(range.saturating_sub(self.reach_mm));
         // Saturating: only absurd rays come near the u64 range.
-        before.saturating_mul(n).div_ceil(u64::from(traced.max(1)))
+        div_u64(before.saturating_mul(n), u64::from(traced.max(1)), true)
+    }
+}
+
+/// `a / b` (`b ≥ 1`), rounded up if `ceil`: one hardware division when both fit a `u32` (a
+/// band's set-up on a robot's ranges), else the `u64` routine a 32-bit core calls.
+#[inline]
+fn div_u64(a: u64, b: u64, ceil: bool) -> u64 {
+    let b = b.max(1);
+    match (u32::try_from(a), u32::try_from(b)) {
+        (Ok(a), Ok(b)) if ceil => u64::from(a.div_ceil(b)),
+        (Ok(a), Ok(b)) => u64::from(a / b),
+        _ if ceil => a.div_ceil(b),
+        _ => a / b,
     }
 }
 
@@ -500,7 +514,7 @@ impl<'a> Rays<'a> {
         // 8·traced/(σ·n) after the one before, so step k lies (n − k) steps before the end.
         // From the first step on, (n − first)·dt ≤ 2·reach·2^19/σ ≤ 24·2^16: |t0| ≤ 36·2^16.
         let den = u64::from(b.sigma_mm).saturating_mul(n.max(1));
-        let dt = ((u64::from(traced) << 19) / den).min(1 << 21);
+        let dt = div_u64(u64::from(traced) << 19, den.max(1), false).min(1 << 21);
         let back = n
             .saturating_sub(steps.first)
             .saturating_mul(dt)
@@ -918,12 +932,7 @@ fn insert_beam_model<L: UpdateListener>(
     // The listener learns which cells will change from the marks, before passes 2-3 clear them.
     if L::REPORTS == Reports::Notable {
         box_words(&area, width, height, |first, last| {
-            let words = marks.get(first..=last).unwrap_or(&[]);
-            for (k, &bits) in words.iter().enumerate() {
-                if bits != 0 {
-                    listener.marked_word(first + k, bits);
-                }
-            }
+            listener.marked_words(first, marks.get(first..=last).unwrap_or(&[]));
         });
     }
     // Pass 2: hits, in beam order; each in-grid hit cell's bit was set by its own ray. With the
@@ -1189,7 +1198,7 @@ where
                     let after = update.apply(before, delta);
                     *cell = after;
                     if L::REPORTS == Reports::Notable {
-                        listener.marked_word(i / 32, 1 << (i % 32));
+                        listener.marked_words(i / 32, &[1 << (i % 32)]);
                     }
                     if hears::<L>(before, after) {
                         listener.changed(i, before, after);
@@ -1309,6 +1318,7 @@ mod tests {
     #[derive(Default)]
     struct Heard {
         marked: Vec<usize>,
+        words: std::collections::HashSet<usize>,
         notable: Vec<(usize, LogOdds, LogOdds)>,
     }
 
@@ -1317,19 +1327,22 @@ mod tests {
         fn changed(&mut self, index: usize, before: LogOdds, after: LogOdds) {
             self.notable.push((index, before, after));
         }
-        fn marked_word(&mut self, word: usize, bits: u32) {
-            assert_ne!(bits, 0, "word {word}");
-            self.marked.extend(
-                (0..32)
-                    .filter(|b| bits & (1 << b) != 0)
-                    .map(|b| 32 * word + b),
-            );
+        fn marked_words(&mut self, first: usize, words: &[u32]) {
+            for (k, &bits) in words.iter().enumerate() {
+                let word = first + k;
+                assert!(self.words.insert(word), "word {word} passed twice");
+                self.marked.extend(
+                    (0..32)
+                        .filter(|b| bits & (1 << b) != 0)
+                        .map(|b| 32 * word + b),
+                );
+            }
         }
     }
 
     /// Inserts `scans` (the pose moving a little between them) with `insert_scan_with`,
-    /// `insert_scan_into` (a [`Reports::Notable`] listener) and `insert_scan` into maps that start from `start` repeated (values outside the clamp
-    /// included) and checks them against `classify_scan` applied with `Clamp::apply`: the same
+    /// `insert_scan_into` (a [`Reports::Notable`] listener) and `insert_scan` into maps that start
+    /// from `start` repeated (values outside the clamp included) and checks them against `classify_scan` applied with `Clamp::apply`: the same
     /// hits in the same order, the same freed cells in increasing index order, the same
     /// statistics, the same map, bit for bit, scan after scan; and the marks left zeroed.
     fn check_against_classification(
@@ -1423,6 +1436,14 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(1000))]
+
+        /// The narrow division equals the `u64` one.
+        #[test]
+        fn narrow_division_matches_u64(a in prop_oneof![any::<u32>().prop_map(u64::from), any::<u64>()],
+                b in prop_oneof![1u64..1000, 1..=u64::from(u32::MAX), 1..=u64::MAX], ceil in any::<bool>()) {
+            let want = if ceil { a.div_ceil(b) } else { a / b };
+            prop_assert_eq!(div_u64(a, b, ceil), want);
+        }
 
         /// The 32-bit point → cell conversion equals `GridGeometry::cell_of_point`.
         #[test]

@@ -166,9 +166,9 @@ where
     }
 
     #[inline(always)]
-    fn marked_word(&mut self, word: usize, bits: u32) {
+    fn marked_words(&mut self, first: usize, words: &[u32]) {
         if self.notify {
-            self.gibbs.note_marked_word(word, bits);
+            self.gibbs.note_marked_words(first, words);
         }
     }
 }

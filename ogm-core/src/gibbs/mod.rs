@@ -596,6 +596,14 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     /// changed cells mostly share a tile, and this spares them the division and the bitset
     /// (empty when `lo > hi`; emptied whenever a visit takes a mark).
     hot_span: (usize, usize),
+    /// [`Gibbs::note_marked_words`]'s row: the first and last index of the row of the last cell
+    /// it looked at, and the row's tile row (geometry only, never stale).
+    mark_row: (usize, usize, u32),
+    /// Tile row and the tile columns (below 32) of it that [`Gibbs::note_marked_words`] marked
+    /// since the last visit: the rows of a tile row mark the same tiles again and again, and
+    /// marking is idempotent until a visit takes a mark or ages a tile (then it is emptied,
+    /// with `hot_span`).
+    marked_cols: (u32, u32),
     /// The last estimate restart ([`Gibbs::note_estimate`]): the log-odds and the estimate it
     /// gives. A scan restarts most cells at a few values (all its first-observed free cells at
     /// the free update), so this spares most restarts the probability lookup.
@@ -814,6 +822,8 @@ where
             tiles_y,
             hot: HotTiles::new(tiles_x, tiles_y),
             hot_span: (1, 0),
+            mark_row: (1, 0, 0),
+            marked_cols: (u32::MAX, 0),
             restart: (
                 LogOdds(0),
                 N::from_probability_q16(estimate::probability_q16(LogOdds(0))),
@@ -956,29 +966,60 @@ where
         self.note_estimate(index, before, now);
     }
 
-    /// The tile part of [`Gibbs::note_changed`] for the cells `32·word + b` of each bit `b` set
-    /// in `bits` (a scan's mark word, [`crate::mapper::UpdateListener::marked_word`]): marks their
-    /// tiles, one tile row segment at a time (a mark word holds at most a few). Their estimates
-    /// are [`Gibbs::note_estimate`]'s, which only the notable changes need
-    /// ([`crate::mapper::notable`]).
-    pub fn note_marked_word(&mut self, word: usize, mut bits: u32) {
-        if !self.marks_tiles() || word >= self.geometry.len().div_ceil(32) {
+    /// The tile part of [`Gibbs::note_changed`] for the cells `32·(first + k) + b` of each bit
+    /// `b` set in each `words[k]` (a row of a scan's mark words,
+    /// [`crate::mapper::UpdateListener::marked_words`]): marks their tiles, one tile row segment
+    /// at a time (a mark word holds at most a few), skipping the tiles it marked since the last
+    /// visit. Their estimates are [`Gibbs::note_estimate`]'s, which only the notable changes
+    /// need ([`crate::mapper::notable`]).
+    pub fn note_marked_words(&mut self, first: usize, words: &[u32]) {
+        let len = self.geometry.len();
+        if !self.marks_tiles() {
             return;
         }
-        // ≤ len + 31 < 2^32 (a grid has at most 65535² cells): no overflow, and every index
-        // below is at most 31 more.
-        let base = word * 32;
-        while bits != 0 {
-            let index = base + bits.trailing_zeros() as usize;
-            let (_, last, in_grid) = self.mark_tile_of(index);
-            // Clear the bits of the cells up to `last` (≥ index), the marked tile's last in
-            // this row.
-            let n = last - base + 1;
-            if !in_grid || n >= 32 {
+        let w = usize::from(self.geometry.width()).max(1);
+        let s = u32::from(self.config.tile_shift);
+        let (cx0, cy0) = (self.cx0 as u32, self.cy0 as u32);
+        let (last_tx, last_ty) = (self.tiles_x - 1, self.tiles_y - 1);
+        let (mut lo, mut hi, mut ty) = self.mark_row;
+        let (mut cols_ty, mut cols) = self.marked_cols;
+        for (k, &word) in words.iter().enumerate() {
+            let mut bits = word;
+            // Indices ≤ len + 31 < 2^32 (a grid has at most 65535² cells) below `len`.
+            let Some(base) = first.checked_add(k).and_then(|i| i.checked_mul(32)) else {
                 break;
+            };
+            while bits != 0 {
+                let index = base + bits.trailing_zeros() as usize;
+                if index >= len {
+                    break;
+                }
+                if !(lo <= index && index <= hi) {
+                    // A new row: one division, then none for the rest of the row.
+                    let y = index / w;
+                    (lo, hi) = (y * w, y * w + w - 1);
+                    ty = ((y as u32).saturating_sub(cy0) >> s).min(last_ty);
+                }
+                // index − lo < w ≤ 65535.
+                let tx = (((index - lo) as u32).saturating_sub(cx0) >> s).min(last_tx);
+                if cols_ty != ty {
+                    (cols_ty, cols) = (ty, 0);
+                }
+                let col = if tx < 32 { 1u32 << tx } else { 0 };
+                if cols & col == 0 {
+                    self.hot.mark(tx, ty);
+                    cols |= col;
+                }
+                // Clear the bits of the cells up to the tile's last in this row (≥ index).
+                let n = lo + self.tile_x_hi(tx) as usize - base + 1;
+                if n >= 32 {
+                    break;
+                }
+                bits &= u32::MAX << n;
             }
-            bits &= u32::MAX << n;
         }
+        self.mark_row = (lo, hi, ty);
+        self.marked_cols = (cols_ty, cols);
     }
 
     /// The estimate part of [`Gibbs::note_changed`]: with [`Estimator::Average`]'s
@@ -1003,6 +1044,20 @@ where
         self.config.hot_share > 0 || self.config.estimator.lengthens()
     }
 
+    /// The last column of tile column `tx` (the last tile column also takes the margin).
+    #[inline]
+    fn tile_x_hi(&self, tx: u32) -> u32 {
+        let w = u32::from(self.geometry.width());
+        if tx + 1 >= self.tiles_x {
+            w.saturating_sub(1)
+        } else {
+            (self.cx0 as u32)
+                .saturating_add((tx + 1) << self.config.tile_shift)
+                .saturating_sub(1)
+                .min(w.saturating_sub(1))
+        }
+    }
+
     /// Marks the tile of cell `index` and returns the indices of the first and last cells of the
     /// tile's part of that cell's row (the first and last tile columns also take the margins
     /// outside the sampled area), and whether `index` lies in the grid.
@@ -1021,14 +1076,7 @@ where
         } else {
             (self.cx0 as u32).saturating_add(tx << s)
         };
-        let x_hi = if tx + 1 >= self.tiles_x {
-            w.saturating_sub(1)
-        } else {
-            (self.cx0 as u32)
-                .saturating_add((tx + 1) << s)
-                .saturating_sub(1)
-                .min(w.saturating_sub(1))
-        };
+        let x_hi = self.tile_x_hi(tx);
         debug_assert!(
             x_lo <= x && x <= x_hi,
             "cell {index}: {x} not in {x_lo}..={x_hi}"
@@ -1086,6 +1134,7 @@ where
         }
         self.hot.clear();
         self.hot_span = (1, 0);
+        self.marked_cols = (u32::MAX, 0);
         (
             self.samples,
             self.halving,
@@ -1231,6 +1280,7 @@ where
         let r = self.rng.next_u32();
         // A visit takes a mark or ages a tile: either way the span's promise ends.
         self.hot_span = (1, 0);
+        self.marked_cols = (u32::MAX, 0);
         let hot = if (r & 0xff) < u32::from(self.config.hot_share) {
             self.hot.take()
         } else {
@@ -2240,11 +2290,15 @@ mod tests {
     use proptest::prelude::*;
 
     type Sampler = Gibbs<BorderPrior, Vec<u32>, Vec<u8>, Vec<LocalRay>, Vec<u32>, u8>;
+    type Store = RayStore<Vec<StoredScan>, Vec<StoredRay>>;
 
-    fn sampler(g: GridGeometry, tile_shift: u8) -> Sampler {
+    fn sampler(g: GridGeometry, tile_shift: u8) -> (Sampler, Store, Vec<LogOdds>) {
         let cfg = SamplerConfig {
             tile_shift,
             hot_share: 192,
+            data: DataTerm::Evidence,
+            evidence_gain_q8: 512,
+            evidence_free_q8: free_evidence_q8(3.0),
             ..SamplerConfig::default()
         };
         let buf = Buffers {
@@ -2253,29 +2307,51 @@ mod tests {
             local: vec![LocalRay::default(); 1],
             blocks: vec![0; block_words(1, cfg.block_grid)],
         };
-        Gibbs::new(g, BorderPrior::default(), ForwardModel::pcsm(), cfg, buf).unwrap()
+        let mut s = Gibbs::new(g, BorderPrior::default(), ForwardModel::pcsm(), cfg, buf).unwrap();
+        let mut st = RayStore::new(
+            g,
+            1000,
+            0,
+            vec![StoredScan::default(); 1],
+            vec![StoredRay::default(); 1],
+        )
+        .unwrap();
+        let map: Vec<LogOdds> = (0..g.len())
+            .map(|i| LogOdds((i % 7) as i16 * 300 - 900))
+            .collect();
+        s.reset(&map, &mut st).unwrap();
+        (s, st, map)
     }
 
     proptest! {
-        /// A mark word's tiles are exactly those its cells would mark one by one.
+        /// A mark word's tiles are exactly those its cells would mark one by one, also after
+        /// visits took or aged marks in between (rounds of words, then sampler steps).
         #[test]
         fn marked_words_mark_the_tiles_of_their_cells(w in 12u16..80, h in 12u16..40,
-                tile_shift in 2u8..6, words in proptest::collection::vec((0usize..120, any::<u32>()), 1..6)) {
+                tile_shift in 2u8..6,
+                rounds in proptest::collection::vec(
+                    proptest::collection::vec((0usize..120, any::<u32>()), 1..6), 1..4)) {
             let g = GridGeometry::new(w, h, 50, 0, 0).unwrap();
-            let (mut by_word, mut by_cell) = (sampler(g, tile_shift), sampler(g, tile_shift));
-            for &(word, bits) in &words {
-                by_word.note_marked_word(word, bits);
-                for i in (0..32).filter(|b| bits & (1 << b) != 0).map(|b| 32 * word + b) {
-                    if i < g.len() {
-                        by_cell.note_changed(i, LogOdds(5), LogOdds(3));
+            let (mut by_word, mut st_w, map) = sampler(g, tile_shift);
+            let (mut by_cell, mut st_c, _) = sampler(g, tile_shift);
+            for words in &rounds {
+                for &(word, bits) in words {
+                    by_word.note_marked_words(word, &[bits]);
+                    for i in (0..32).filter(|b| bits & (1 << b) != 0).map(|b| 32 * word + b) {
+                        if i < g.len() {
+                            by_cell.note_changed(i, LogOdds(5), LogOdds(3));
+                        }
                     }
                 }
-            }
-            for ty in 0..by_cell.tiles_y {
-                for tx in 0..by_cell.tiles_x {
-                    prop_assert_eq!(by_word.hot.is_marked(tx, ty), by_cell.hot.is_marked(tx, ty),
-                        "tile ({}, {})", tx, ty);
+                for ty in 0..by_cell.tiles_y {
+                    for tx in 0..by_cell.tiles_x {
+                        prop_assert_eq!(by_word.hot.is_marked(tx, ty), by_cell.hot.is_marked(tx, ty),
+                            "tile ({}, {})", tx, ty);
+                    }
                 }
+                by_word.step(&mut st_w, &map, 300);
+                by_cell.step(&mut st_c, &map, 300);
+                prop_assert_eq!(by_word.stats(), by_cell.stats());
             }
         }
     }
