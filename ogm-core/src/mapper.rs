@@ -141,6 +141,11 @@ pub trait UpdateListener {
     /// index: the cells `32·(first + k) + b`, for each bit `b` set in `words[k]`, are the ones
     /// this scan changes (together with the other rows' cells). Each word is passed once.
     fn marked_words(&mut self, first: usize, words: &[u32]);
+    /// With [`Reports::Notable`], instead of [`UpdateListener::changed`] for each: the sweep
+    /// freed the cells `32·word + b`, for each bit `b` set in `bits`, which were unobserved
+    /// (log-odds 0) and are now all `after`. Most of a scan's notable cells are such newly
+    /// seen free space, and a word of them costs the listener about a cell's worth.
+    fn fresh_word(&mut self, word: usize, bits: u32, after: LogOdds);
 }
 
 /// The mapper alone: nobody listens.
@@ -150,6 +155,8 @@ impl UpdateListener for () {
     fn changed(&mut self, _: usize, _: LogOdds, _: LogOdds) {}
     #[inline(always)]
     fn marked_words(&mut self, _: usize, _: &[u32]) {}
+    #[inline(always)]
+    fn fresh_word(&mut self, _: usize, _: u32, _: LogOdds) {}
 }
 
 /// A closure that hears every changed cell ([`Mapper::insert_scan_with`]).
@@ -163,6 +170,8 @@ impl<F: FnMut(usize, LogOdds, LogOdds)> UpdateListener for EachCell<F> {
     }
     #[inline(always)]
     fn marked_words(&mut self, _: usize, _: &[u32]) {}
+    #[inline(always)]
+    fn fresh_word(&mut self, _: usize, _: u32, _: LogOdds) {}
 }
 
 /// Whether `listener` hears the change of a cell from `before` to `after`.
@@ -1096,8 +1105,11 @@ fn free_words<L: UpdateListener>(
                 continue;
             }
         }
+        // With `Reports::Notable`: the word's cells that were unobserved, told as one word.
+        let mut fresh = 0u32;
         while bits != 0 {
-            let i = base + bits.trailing_zeros() as usize;
+            let b = bits.trailing_zeros();
+            let i = base + b as usize;
             // Clears the lowest set bit.
             bits &= bits - 1;
             if let Some(cell) = cells.get_mut(i) {
@@ -1105,10 +1117,15 @@ fn free_words<L: UpdateListener>(
                 let after = update.apply(before, update.free);
                 *cell = after;
                 freed += 1;
-                if hears_freed::<L>(before, after) {
+                if L::REPORTS == Reports::Notable && before.0 == 0 {
+                    fresh |= 1 << b;
+                } else if hears_freed::<L>(before, after) {
                     listener.changed(i, before, after);
                 }
             }
+        }
+        if fresh != 0 {
+            listener.fresh_word(first + k, fresh, update.apply(LogOdds(0), update.free));
         }
     }
     freed
@@ -1342,6 +1359,14 @@ mod tests {
         fn changed(&mut self, index: usize, before: LogOdds, after: LogOdds) {
             self.notable.push((index, before, after));
         }
+        fn fresh_word(&mut self, word: usize, bits: u32, after: LogOdds) {
+            assert_ne!(bits, 0, "word {word}");
+            self.notable.extend(
+                (0..32)
+                    .filter(|b| bits & (1 << b) != 0)
+                    .map(|b| (32 * word + b, LogOdds(0), after)),
+            );
+        }
         fn marked_words(&mut self, first: usize, words: &[u32]) {
             for (k, &bits) in words.iter().enumerate() {
                 let word = first + k;
@@ -1414,17 +1439,24 @@ mod tests {
                 want_stats
             );
             // `Reports::Notable`: the mark words name exactly the changed cells, each once,
-            // and only the notable changes are heard, in the same order.
+            // and only the notable changes are heard.
             let mut changed: Vec<usize> = got.iter().map(|c| c.0).collect();
             changed.sort_unstable();
             heard.marked.sort_unstable();
             prop_assert_eq!(&heard.marked, &changed);
-            let notables: Vec<_> = got
-                .iter()
-                .copied()
-                .filter(|&(_, before, after)| notable(before, after))
-                .collect();
-            prop_assert_eq!(&heard.notable, &notables);
+            // The hits' in beam order, then the sweep's (the fresh ones a word at a time).
+            let notables = |c: &[(usize, LogOdds, LogOdds)]| -> Vec<_> {
+                c.iter()
+                    .copied()
+                    .filter(|&(_, before, after)| notable(before, after))
+                    .collect()
+            };
+            let hits = (stats.cells_hit as usize).min(got.len());
+            let (hit_notables, freed_notables) = (notables(&got[..hits]), notables(&got[hits..]));
+            let n = hit_notables.len().min(heard.notable.len());
+            heard.notable[n..].sort_unstable();
+            prop_assert_eq!(&heard.notable[..n], &hit_notables[..]);
+            prop_assert_eq!(&heard.notable[n..], &freed_notables[..]);
             prop_assert_eq!(listened.grid().cells(), &want[..]);
             prop_assert!(listened.marks.iter().all(|&w| w == 0));
             let hits = (stats.cells_hit as usize).min(got.len());

@@ -166,6 +166,16 @@ where
     }
 
     #[inline(always)]
+    fn fresh_word(&mut self, word: usize, bits: u32, after: crate::LogOdds) {
+        self.gibbs.seed_word(word, bits, after > self.threshold);
+        self.seeded = true;
+        if self.notify {
+            self.gibbs
+                .note_estimate_word(word, bits, crate::LogOdds(0), after);
+        }
+    }
+
+    #[inline(always)]
     fn marked_words(&mut self, first: usize, words: &[u32]) {
         if self.notify {
             self.gibbs.note_marked_words(first, words);

@@ -916,6 +916,18 @@ where
         self.set_occupied(index, occupied);
     }
 
+    /// [`Gibbs::seed`] for the cells `32·word + b` of each bit `b` set in `bits`, all with the
+    /// same state: a word at a time.
+    pub fn seed_word(&mut self, word: usize, bits: u32, occupied: bool) {
+        if let Some(w) = self.buf.sample.as_mut().get_mut(word) {
+            if occupied {
+                *w |= bits;
+            } else {
+                *w &= !bits;
+            }
+        }
+    }
+
     /// The denominator of [`Gibbs::count`]: samples accumulated into the marginal counts
     /// (≤ `Count::MAX`, halves when full) with [`Estimator::Counts`]; `Count::MAX` with
     /// [`Estimator::Average`], whose counts are probabilities scaled to `Count::MAX`.
@@ -972,6 +984,8 @@ where
     /// at a time (a mark word holds at most a few), skipping the tiles it marked since the last
     /// visit. Their estimates are [`Gibbs::note_estimate`]'s, which only the notable changes
     /// need ([`crate::mapper::notable`]).
+    // Out of line: its loop needs its own registers (inlined into the mapper it spilled most).
+    #[inline(never)]
     pub fn note_marked_words(&mut self, first: usize, words: &[u32]) {
         let len = self.geometry.len();
         if !self.marks_tiles() {
@@ -1033,6 +1047,35 @@ where
             }
             if let Some(c) = self.buf.counts.as_mut().get_mut(index) {
                 *c = self.restart.1;
+            }
+        }
+    }
+
+    /// [`Gibbs::note_estimate`] for the cells `32·word + b` of each bit `b` set in `bits`, all
+    /// changed from `before` to `now` by the same scan.
+    pub fn note_estimate_word(
+        &mut self,
+        word: usize,
+        mut bits: u32,
+        before: LogOdds,
+        now: LogOdds,
+    ) {
+        if !(self.config.estimator.resets() && crate::mapper::notable(before, now)) {
+            return;
+        }
+        if self.restart.0 != now {
+            self.restart = (now, N::from_probability_q16(estimate::probability_q16(now)));
+        }
+        let c = self.restart.1;
+        let Some(base) = word.checked_mul(32) else {
+            return;
+        };
+        let counts = self.buf.counts.as_mut();
+        while bits != 0 {
+            let i = base.saturating_add(bits.trailing_zeros() as usize);
+            bits &= bits - 1;
+            if let Some(e) = counts.get_mut(i) {
+                *e = c;
             }
         }
     }
@@ -2324,6 +2367,36 @@ mod tests {
     }
 
     proptest! {
+        /// Seeding and restarting a word of cells equals doing it cell by cell.
+        #[test]
+        fn word_seeding_matches_cells(words in proptest::collection::vec(
+                (0usize..60, any::<u32>(), -3000i16..3000, any::<bool>()), 1..8)) {
+            let g = GridGeometry::new(40, 40, 50, 0, 0).unwrap();
+            let (mut by_word, _, _) = sampler(g, 4);
+            let (mut by_cell, _, _) = sampler(g, 4);
+            // Restarts need an estimator that resets.
+            for s in [&mut by_word, &mut by_cell] {
+                s.config.estimator = Estimator::Average {
+                    shift: 3,
+                    max_shift: 3,
+                    reset_on_change: true,
+                    rao_blackwell: false,
+                };
+            }
+            for &(word, bits, now, occupied) in &words {
+                by_word.seed_word(word, bits, occupied);
+                by_word.note_estimate_word(word, bits, LogOdds(0), LogOdds(now));
+                for i in (0..32).filter(|b| bits & (1 << b) != 0).map(|b| 32 * word + b) {
+                    if i < g.len() {
+                        by_cell.seed(i, occupied);
+                        by_cell.note_estimate(i, LogOdds(0), LogOdds(now));
+                    }
+                }
+            }
+            prop_assert_eq!(by_word.buf.sample.as_slice(), by_cell.buf.sample.as_slice());
+            prop_assert_eq!(by_word.buf.counts.as_slice(), by_cell.buf.counts.as_slice());
+        }
+
         /// A mark word's tiles are exactly those its cells would mark one by one, also after
         /// visits took or aged marks in between (rounds of words, then sampler steps).
         #[test]
