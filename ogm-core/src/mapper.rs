@@ -1496,6 +1496,15 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(1000))]
 
+        /// The band walk's 32-bit face slot rounds and clamps like `BandRay::eighths`.
+        #[test]
+        fn face_slot_matches_eighths(t in prop_oneof![(-30i32..30).prop_map(|k| k << 15),
+                -(13i32 << 16)..(13 << 16), any::<i32>()]) {
+            let r = ((u64::from(t.unsigned_abs()) + (1 << 15)) >> 16).min(12) as i32;
+            let want = if t < 0 { -r } else { r };
+            prop_assert_eq!(face_slot(t) as i32 - FACE_REACH, want);
+        }
+
         /// The narrow division equals the `u64` one.
         #[test]
         fn narrow_division_matches_u64(a in prop_oneof![any::<u32>().prop_map(u64::from), any::<u64>()],
