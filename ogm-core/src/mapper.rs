@@ -1119,6 +1119,12 @@ fn free_words<L: UpdateListener>(
         }
         // With `Reports::Notable`: the word's cells that were unobserved, told as one word.
         let mut fresh = 0u32;
+        // Marked cells are in the grid (marking sets no bit past its end), so all are freed:
+        // counted per word on a 32-bit core (one register fewer in its loop), per cell on a
+        // 64-bit host (which has no cheaper count without `popcnt`).
+        if !LANE_SWEEP {
+            freed += bits.count_ones();
+        }
         while bits != 0 {
             let b = bits.trailing_zeros();
             let i = base + b as usize;
@@ -1128,7 +1134,7 @@ fn free_words<L: UpdateListener>(
                 let before = *cell;
                 let after = update.apply(before, update.free);
                 *cell = after;
-                freed += 1;
+                freed += u32::from(LANE_SWEEP);
                 if L::REPORTS == Reports::Notable && before.0 == 0 {
                     fresh |= 1 << b;
                 } else if hears_freed::<L>(before, after) {
