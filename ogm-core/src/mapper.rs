@@ -508,11 +508,12 @@ impl<'a> Rays<'a> {
         Some((ray, steps))
     }
 
-    /// The face band of a reading at `range` mm along `angle`, if any of it is in the grid.
+    /// The face band of a reading at `range` mm along `angle`, if any of it is in the grid;
+    /// `end`, if known, is the end cell of its ray (traced to `range` plus the band's reach).
     #[inline(never)]
-    fn band(&self, b: Band, range: u32, angle: Angle) -> Option<BandRay> {
+    fn band(&self, b: Band, range: u32, angle: Angle, end: Option<CellCoord>) -> Option<BandRay> {
         let traced = range.saturating_add(b.reach_mm);
-        let end = self.end(traced, angle);
+        let end = end.unwrap_or_else(|| self.end(traced, angle));
         let (ray, mut steps) = self.in_grid(end)?;
         let n = ray.steps();
         steps.first = steps.first.max(b.first_step(range, traced, n));
@@ -628,7 +629,7 @@ fn classify_beam(
                 }
             }
             Some(b) => {
-                let Some(face) = rays.band(b, range, beam.angle) else {
+                let Some(face) = rays.band(b, range, beam.angle, None) else {
                     continue;
                 };
                 let words = &mut *marks.words;
@@ -876,6 +877,25 @@ const HIT_TABLE: usize = if cfg!(target_pointer_width = "64") {
 /// has at most 65535² cells).
 const NO_CELL: u32 = u32::MAX;
 
+/// A band ray's end cell in a hit table slot, `x` and `y` as `i16`s, or [`NO_CELL`] (then
+/// pass 2 computes it again) if they do not fit or pack to [`NO_CELL`] itself.
+#[inline]
+fn pack_end(c: CellCoord) -> u32 {
+    match (i16::try_from(c.x), i16::try_from(c.y)) {
+        (Ok(x), Ok(y)) => u32::from(x as u16) << 16 | u32::from(y as u16),
+        _ => NO_CELL,
+    }
+}
+
+/// [`pack_end`]'s cell, if it packed one.
+#[inline]
+fn unpack_end(v: u32) -> Option<CellCoord> {
+    (v != NO_CELL).then(|| CellCoord {
+        x: i32::from((v >> 16) as u16 as i16),
+        y: i32::from(v as u16 as i16),
+    })
+}
+
 /// The beam model's insertion, in three passes over the scan:
 /// 1. **mark**: every used beam's ray, clipped to the grid and *including* a hit's end cell, sets
 ///    its cells' bits in `marks` (run by run where the ray is x-major, [`IndexWalk::mark_all`]);
@@ -920,8 +940,13 @@ fn insert_beam_model<L: UpdateListener>(
         let end = rays.end(Band::traced(band, range, hit), beam.angle);
         if hit {
             if let Some(slot) = hits.get_mut(n_hits) {
-                // In-grid indices are < 2^32 − 1 (see NO_CELL).
-                *slot = g.index(end).map_or(NO_CELL, |i| i as u32);
+                *slot = if band.is_some() {
+                    // The band's set-up in pass 2 starts from the same end cell.
+                    pack_end(end)
+                } else {
+                    // In-grid indices are < 2^32 − 1 (see NO_CELL).
+                    g.index(end).map_or(NO_CELL, |i| i as u32)
+                };
             }
             n_hits += 1;
         }
@@ -948,11 +973,14 @@ fn insert_beam_model<L: UpdateListener>(
     // face band, each hit's band cells, in beam order (set by its own ray too).
     if let Some(b) = band {
         let face = face_deltas(&update);
+        let mut k = 0usize;
         for beam in beams {
             let Some((range, true)) = beam_extent(cfg, beam) else {
                 continue;
             };
-            let Some(band) = rays.band(b, range, beam.angle) else {
+            let end = hits.get(k).and_then(|&v| unpack_end(v));
+            k += 1;
+            let Some(band) = rays.band(b, range, beam.angle, end) else {
                 continue;
             };
             // Claims band cell `i` at face slot `slot` (its offset in eighths of σ, + R).
@@ -1509,6 +1537,18 @@ mod tests {
             let r = ((u64::from(t.unsigned_abs()) + (1 << 15)) >> 16).min(12) as i32;
             let want = if t < 0 { -r } else { r };
             prop_assert_eq!(face_slot(t) as i32 - FACE_REACH, want);
+        }
+
+        /// A packed end cell unpacks to itself, or to nothing (then it is computed again).
+        #[test]
+        fn end_cells_pack(x in prop_oneof![-40_000i32..40_000, any::<i32>()],
+                          y in prop_oneof![-40_000i32..40_000, any::<i32>()]) {
+            let c = CellCoord { x, y };
+            match unpack_end(pack_end(c)) {
+                Some(u) => prop_assert_eq!(u, c),
+                None => prop_assert!(i16::try_from(x).is_err() || i16::try_from(y).is_err()
+                    || (x, y) == (-1, -1)),
+            }
         }
 
         /// The narrow division equals the `u64` one.
