@@ -1635,8 +1635,11 @@ mod tests {
 
         /// Marking a walk run by run sets exactly the bits of its cells.
         #[test]
+        // Widths of whole words too (32, 64: the strided runs' one-bit path), and heights that
+        // give long y-major runs.
         fn run_marking_sets_the_walked_cells(x0 in -20i32..80, y0 in -20i32..80, x1 in -20i32..80, y1 in -20i32..80,
-                                             w in 1u16..70, h in 1u16..9) {
+                                             w in prop_oneof![1u16..70, Just(32u16), Just(64u16)],
+                                             h in prop_oneof![1u16..9, 9u16..90]) {
             let r = Ray::new(CellCoord { x: x0, y: y0 }, CellCoord { x: x1, y: y1 });
             let Some(steps) = r.clip(w, h) else { return Ok(()); };
             let Some(walk) = r.index_walk(steps, w) else { return Ok(()); };

@@ -647,6 +647,15 @@ impl RunWalk {
                 set_bits(words, lo, l);
                 index = next_run(index, l, stride, minor);
             }
+        } else if stride % 32 == 0 {
+            loop {
+                let l = runs.next();
+                if l == 0 {
+                    break;
+                }
+                mark_strided_words(words, index, l, stride);
+                index = next_run(index, l, stride, minor);
+            }
         } else {
             loop {
                 let l = runs.next();
@@ -666,6 +675,21 @@ fn next_run(index: usize, l: u32, stride: usize, minor: usize) -> usize {
     index
         .wrapping_add((l as usize).wrapping_mul(stride))
         .wrapping_add(minor)
+}
+
+/// [`mark_strided`] for a stride that is a whole number of words (`stride % 32 == 0`: a row of
+/// a grid 32·k cells wide, e.g. the firmware's): every cell has the same bit, in a word
+/// `stride / 32` further on.
+#[inline(always)]
+fn mark_strided_words(words: &mut [u32], index: usize, n: u32, stride: usize) {
+    let (bit, step) = (1u32 << (index % 32), (stride as isize / 32) as usize);
+    let mut w = index / 32;
+    for _ in 0..n {
+        if let Some(word) = words.get_mut(w) {
+            *word |= bit;
+        }
+        w = w.wrapping_add(step);
+    }
 }
 
 /// Marks `n` cells from `index` in steps of `stride` (two's complement).
