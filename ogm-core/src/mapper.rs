@@ -548,15 +548,16 @@ pub fn scan_box(
     pose: &Pose,
     beams: &[Beam],
 ) -> (CellCoord, CellCoord) {
-    let c = g.cell_of_pose(pose);
+    // The mapper's own end cells (32-bit cell conversion: no 64-bit division per beam).
+    let rays = Rays::new(g, pose);
+    let c = rays.origin;
     let (mut lo, mut hi) = (c, c);
     let band = Band::of(cfg);
     for b in beams {
         let Some((range, hit)) = beam_extent(cfg, b) else {
             continue;
         };
-        let (x, y) = pose.beam_end(b.angle, Band::traced(band, range, hit));
-        let e = g.cell_of_point(x, y);
+        let e = rays.end(Band::traced(band, range, hit), b.angle);
         lo = CellCoord {
             x: lo.x.min(e.x),
             y: lo.y.min(e.y),
