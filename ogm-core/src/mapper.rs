@@ -1098,9 +1098,6 @@ fn hears_freed<L: UpdateListener>(before: LogOdds, after: LogOdds) -> bool {
 /// instructions; a 32-bit microcontroller has no such unit and visits the set bits one by one.
 const LANE_SWEEP: bool = cfg!(target_pointer_width = "64");
 
-/// A word with at most this many cells to free is cheaper bit by bit than lane-wise.
-const FEW_CELLS: u32 = 3;
-
 /// Frees the cells whose bits are set in `marks[first..=last]`, in increasing index order, and
 /// clears those words; returns how many cells it freed, and tells `listener` (see [`Reports`]).
 // Out of line on a 32-bit core, whose registers then hold the sweep's state instead of the
@@ -1126,16 +1123,7 @@ fn free_words<L: UpdateListener>(
         let mut bits = core::mem::take(word);
         // The words of in-grid cells: base + 31 < 2^32 · 32, no overflow.
         let base = (first + k) * 32;
-        // Words with few cells (far from the robot, where rays are sparse) are cheaper bit by
-        // bit.
-        let few = {
-            let mut rest = bits;
-            for _ in 0..FEW_CELLS {
-                rest &= rest.wrapping_sub(1);
-            }
-            rest == 0
-        };
-        if LANE_SWEEP && L::REPORTS == Reports::Nothing && !few {
+        if LANE_SWEEP && L::REPORTS == Reports::Nothing {
             // A whole word of cells (all but possibly the grid's last word).
             let lanes = cells
                 .get_mut(base..base + 32)
