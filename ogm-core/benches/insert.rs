@@ -10,7 +10,9 @@
 //! of beams lost (`NoReturn`). Everything is deterministic, so runs are comparable.
 //!
 //! `insert/hahnel/fixed` is `insert_scan`, `insert/hahnel/fixed_with` is `insert_scan_with` with a
-//! callback that counts first observations (the firmware's seeding path).
+//! callback that counts first observations (the firmware's old seeding path), and
+//! `insert/hahnel/fixed_notable` is `insert_scan_into` with a `Reports::Notable` listener (the
+//! online sampler's path: mark words and notable cells only).
 //!
 //! Throughput is `Throughput::Elements(cells updated)`, where a cell counts once per scan
 //! (`ScanStats::cells_hit + cells_freed`: the mapper updates every cell at most once per scan). The
@@ -21,7 +23,7 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use ogm_core::mapper::marks_len;
+use ogm_core::mapper::{marks_len, Reports, UpdateListener};
 use ogm_core::ray::Ray;
 use ogm_core::reference::{Increments, ReferenceMapper};
 use ogm_core::sensor_model::InverseSensorModel;
@@ -159,6 +161,26 @@ fn scans(n: usize) -> Vec<Scan> {
     out
 }
 
+/// A `Reports::Notable` listener that only counts what it hears.
+#[derive(Clone, Copy, Debug, Default)]
+struct Tally {
+    words: u32,
+    notable: u32,
+}
+
+impl UpdateListener for Tally {
+    const REPORTS: Reports = Reports::Notable;
+    fn changed(&mut self, _: usize, _: LogOdds, _: LogOdds) {
+        self.notable += 1;
+    }
+    fn marked_words(&mut self, _: usize, words: &[u32]) {
+        self.words += words.len() as u32;
+    }
+    fn fresh_word(&mut self, _: usize, bits: u32, _: LogOdds) {
+        self.notable += bits.count_ones();
+    }
+}
+
 fn fixed_mapper(cfg: MapperConfig) -> Mapper<Vec<LogOdds>, Vec<u32>> {
     let g = geometry();
     let grid = LogOddsGrid::new(g, vec![LogOdds::ZERO; g.len()]).unwrap();
@@ -270,6 +292,22 @@ fn bench_insert(c: &mut Criterion) {
                 );
             }
             black_box(first_seen)
+        })
+    });
+    // The online sampler's path since issue 15's second round: the changed cells' mark words
+    // and only the notable cells (`Reports::Notable`), with the sweep's lane-free loop.
+    let mut listened = fixed_mapper(hahnel);
+    group.bench_function(BenchmarkId::new("hahnel", "fixed_notable"), |b| {
+        b.iter(|| {
+            let mut heard = Tally::default();
+            for s in &beam_scans {
+                black_box(
+                    listened
+                        .insert_scan_into(&s.pose, black_box(&s.beams), &mut heard)
+                        .unwrap(),
+                );
+            }
+            black_box(heard)
         })
     });
     let mut reference = reference_mapper(hahnel);
