@@ -648,24 +648,31 @@ impl RunWalk {
                 index = next_run(index, l, stride, minor);
             }
         } else if stride % 32 == 0 {
-            loop {
-                let l = runs.next();
-                if l == 0 {
-                    break;
-                }
-                mark_strided_words(words, index, l, stride);
-                index = next_run(index, l, stride, minor);
-            }
+            // Chosen once per ray, not per run.
+            mark_runs(words, index, runs, stride, minor, mark_strided_words);
         } else {
-            loop {
-                let l = runs.next();
-                if l == 0 {
-                    break;
-                }
-                mark_strided(words, index, l, stride);
-                index = next_run(index, l, stride, minor);
-            }
+            mark_runs(words, index, runs, stride, minor, mark_strided);
         }
+    }
+}
+
+/// Marks every run of a strided walk from `index` with `mark(words, first, length, stride)`.
+#[inline(always)]
+fn mark_runs(
+    words: &mut [u32],
+    mut index: usize,
+    mut runs: Runs,
+    stride: usize,
+    minor: usize,
+    mark: impl Fn(&mut [u32], usize, u32, usize),
+) {
+    loop {
+        let l = runs.next();
+        if l == 0 {
+            break;
+        }
+        mark(words, index, l, stride);
+        index = next_run(index, l, stride, minor);
     }
 }
 
