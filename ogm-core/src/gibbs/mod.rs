@@ -1042,13 +1042,20 @@ where
     #[inline]
     pub fn note_estimate(&mut self, index: usize, before: LogOdds, now: LogOdds) {
         if self.config.estimator.resets() && crate::mapper::notable(before, now) {
-            if self.restart.0 != now {
-                self.restart = (now, N::from_probability_q16(estimate::probability_q16(now)));
-            }
-            if let Some(c) = self.buf.counts.as_mut().get_mut(index) {
-                *c = self.restart.1;
+            let c = self.restart_at(now);
+            if let Some(e) = self.buf.counts.as_mut().get_mut(index) {
+                *e = c;
             }
         }
+    }
+
+    /// The estimate a restart at `now` sets, through the one-entry memo `restart`.
+    #[inline]
+    fn restart_at(&mut self, now: LogOdds) -> N {
+        if self.restart.0 != now {
+            self.restart = (now, N::from_probability_q16(estimate::probability_q16(now)));
+        }
+        self.restart.1
     }
 
     /// [`Gibbs::note_estimate`] for the cells `32·word + b` of each bit `b` set in `bits`, all
@@ -1063,10 +1070,7 @@ where
         if !(self.config.estimator.resets() && crate::mapper::notable(before, now)) {
             return;
         }
-        if self.restart.0 != now {
-            self.restart = (now, N::from_probability_q16(estimate::probability_q16(now)));
-        }
-        let c = self.restart.1;
+        let c = self.restart_at(now);
         let Some(base) = word.checked_mul(32) else {
             return;
         };
