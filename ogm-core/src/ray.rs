@@ -444,12 +444,13 @@ impl IndexWalk {
     /// walk (bits of indices past the end of `words` are ignored), consuming the walk.
     ///
     /// Run by run ([`RunWalk::mark`]) where that is cheaper: runs of consecutive indices, set
-    /// with a mask per word, and runs of other cells when they are long; otherwise cell by
+    /// with a mask per word (on a 32-bit core only when they are long, see
+    /// [`SHORT_CONTIGUOUS_RUNS`]), and runs of other cells when they are long; otherwise cell by
     /// cell, since a run costs about as much to set up as three cells cost to step through.
     #[inline]
     pub(crate) fn mark_all(self, words: &mut [u32]) {
         let runs = self.runs();
-        if runs.contiguous() || runs.long() {
+        if (SHORT_CONTIGUOUS_RUNS && runs.contiguous()) || runs.long() {
             runs.mark(words);
         } else {
             self.mark_cells(words);
@@ -595,6 +596,13 @@ impl Runs {
 /// are not contiguous: a run costs about as much to set up as three cells cost to step through
 /// (chosen with callgrind on x86-64 on the shared CARMEN logs, docs/insertion.md).
 const LONG_RUN: u32 = 4;
+
+/// Whether runs of consecutive indices shorter than [`LONG_RUN`] are marked run by run too. On
+/// a 64-bit host a mask per word beats stepping their cells (callgrind, docs/insertion.md); a
+/// Cortex-M4 spills the run loop's state to the stack and spends ~47 instructions per run
+/// against ~14 per cell stepped, so there a ray of short runs (slope ⅓ … ½) is stepped cell by
+/// cell (per-scan step 133.0 → 131.2 instructions per updated cell, docs/benchmarks.md).
+const SHORT_CONTIGUOUS_RUNS: bool = cfg!(target_pointer_width = "64");
 
 /// An [`IndexWalk`] as runs: `index` is the first cell of the current run, its cells follow at
 /// `stride` (two's complement), and the next run starts one stride past the last cell plus
