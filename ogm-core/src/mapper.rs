@@ -124,8 +124,9 @@ pub fn notable(before: LogOdds, after: LogOdds) -> bool {
 }
 
 /// Who hears about a scan's updates ([`Mapper::insert_scan_into`]). Each cell changes at most
-/// once per scan: with the beam model first the hit (and face band) cells in beam order, then
-/// the freed cells in increasing index order; with the cone model in [`classify_scan`]'s order.
+/// once per scan: with the beam model first the hit cells in beam order (with the face band,
+/// each beam's band cells in turn, a band's from either end), then the freed cells in increasing
+/// index order; with the cone model in [`classify_scan`]'s order.
 ///
 /// Why not a closure per cell: the online sampler needs every changed cell's *tile* but the
 /// values of only a few cells; with [`Reports::Notable`] it learns the tiles from the scan's mark
@@ -393,6 +394,13 @@ impl Band {
         // Saturating: only absurd rays come near the u64 range.
         div_u64(before.saturating_mul(n), u64::from(traced.max(1)), true)
     }
+
+    /// The offset of one step past the one before, in eighths of σ, Q16 (≤ 2^21), on a ray of
+    /// `n` steps traced to `traced` mm: each step lies `8·traced/(σ·n)` eighths further on.
+    fn step_t(&self, traced: u32, n: u64) -> u64 {
+        let den = u64::from(self.sigma_mm).saturating_mul(n.max(1));
+        div_u64(u64::from(traced) << 19, den.max(1), false).min(1 << 21)
+    }
 }
 
 /// `a / b` (`b ≥ 1`), rounded up if `ceil`: one hardware division when both fit a `u32` (a
@@ -508,6 +516,34 @@ impl<'a> Rays<'a> {
         Some((ray, steps))
     }
 
+    /// The walk over the face band of a reading at `range` mm whose ray (traced to `range` plus
+    /// the band's reach) ends at `end`, backwards from `end`, with the offset past the reading of
+    /// its first cell (`end`'s) and of each step, in eighths of σ, Q16 (for [`face_slot`]): the
+    /// usual case, where the pose's cell and `end` are both in the grid, so the band ends at the
+    /// ray's last cell. `None` otherwise ([`Rays::band`] then walks it forwards) or if the band
+    /// has no cell.
+    ///
+    /// The same cells and offsets as [`Rays::band`]'s walk, in reverse, without its clipping and
+    /// the division that finds where its walk starts ([`Ray::index_walk_back`]): step `k` lies
+    /// `(n − k)·dt` before the end, which is `8·reach/σ` past the reading (`reach_t`).
+    #[inline]
+    fn band_back(
+        &self,
+        b: Band,
+        range: u32,
+        end: Option<CellCoord>,
+    ) -> Option<(IndexWalk, (i32, i32))> {
+        let end = end.filter(|_| self.origin_inside)?;
+        let end_index = self.g.index(end)?;
+        let ray = Ray::new(self.origin, end);
+        let n = ray.steps();
+        let traced = range.saturating_add(b.reach_mm);
+        let cells = n.checked_sub(b.first_step(range, traced, n))? + 1;
+        let walk = ray.index_walk_back(end_index, u32::try_from(cells).ok()?, self.g.width())?;
+        // reach_t ≤ 12·2^16 and dt ≤ 2^21 (`Band::of`, `Band::step_t`): both fit an i32.
+        Some((walk, (b.reach_t as i32, -(b.step_t(traced, n) as i32))))
+    }
+
     /// The face band of a reading at `range` mm along `angle`, if any of it is in the grid;
     /// `end`, if known, is the end cell of its ray (traced to `range` plus the band's reach).
     #[inline(never)]
@@ -523,8 +559,7 @@ impl<'a> Rays<'a> {
         // In eighths of σ (Q16): the ray's end lies 8·reach/σ past the reading and each step
         // 8·traced/(σ·n) after the one before, so step k lies (n − k) steps before the end.
         // From the first step on, (n − first)·dt ≤ 2·reach·2^19/σ ≤ 24·2^16: |t0| ≤ 36·2^16.
-        let den = u64::from(b.sigma_mm).saturating_mul(n.max(1));
-        let dt = div_u64(u64::from(traced) << 19, den.max(1), false).min(1 << 21);
+        let dt = b.step_t(traced, n);
         let back = n
             .saturating_sub(steps.first)
             .saturating_mul(dt)
@@ -971,7 +1006,8 @@ fn insert_beam_model<L: UpdateListener>(
         });
     }
     // Pass 2: hits, in beam order; each in-grid hit cell's bit was set by its own ray. With the
-    // face band, each hit's band cells, in beam order (set by its own ray too).
+    // face band, each hit's band cells, in beam order (set by its own ray too), each band from
+    // its ray's end where it can (`Rays::band_back`).
     if let Some(b) = band {
         let face = face_deltas(&update);
         let mut k = 0usize;
@@ -981,9 +1017,6 @@ fn insert_beam_model<L: UpdateListener>(
             };
             let end = hits.get(k).and_then(|&v| unpack_end(v));
             k += 1;
-            let Some(band) = rays.band(b, range, beam.angle, end) else {
-                continue;
-            };
             // Claims band cell `i` at face slot `slot` (its offset in eighths of σ, + R).
             let mut claim = |i: usize, slot: usize| {
                 let (w, bit) = (i / 32, 1u32 << (i % 32));
@@ -999,23 +1032,34 @@ fn insert_beam_model<L: UpdateListener>(
                     }
                 }
             };
-            match band.ray.index_walk(band.steps, width) {
-                // The offset by one addition per step (no multiply), in registers.
-                Some(mut walk) => {
-                    let (mut t, dt) = band.offsets();
-                    loop {
-                        claim(walk.index(), face_slot(t));
-                        if walk.left() <= 1 {
-                            break;
+            // Backwards from the ray's end where it is in the grid, else forwards from the
+            // band's first cell in the grid.
+            let (mut walk, (mut t, dt)) = match rays.band_back(b, range, end) {
+                Some(back) => back,
+                None => {
+                    let Some(band) = rays.band(b, range, beam.angle, end) else {
+                        continue;
+                    };
+                    match band.ray.index_walk(band.steps, width) {
+                        Some(walk) => (walk, band.offsets()),
+                        None => {
+                            band.ray.for_each_index(band.steps, width, |k, i| {
+                                claim(i, (i32::from(band.eighths(k)) + FACE_REACH) as usize)
+                            });
+                            continue;
                         }
-                        walk.take(1);
-                        walk.advance();
-                        t = t.saturating_add(dt);
                     }
                 }
-                None => band.ray.for_each_index(band.steps, width, |k, i| {
-                    claim(i, (i32::from(band.eighths(k)) + FACE_REACH) as usize)
-                }),
+            };
+            // The offset by one addition per step (no multiply), in registers.
+            loop {
+                claim(walk.index(), face_slot(t));
+                if walk.left() <= 1 {
+                    break;
+                }
+                walk.take(1);
+                walk.advance();
+                t = t.saturating_add(dt);
             }
         }
     }
@@ -1204,8 +1248,8 @@ where
 
     /// [`Mapper::insert_scan`] that also reports every cell it changes as
     /// `on_update(index, before, after)`, each cell exactly once per scan: with the beam model
-    /// first the hit cells in beam order, then the freed cells in increasing index order; with
-    /// the cone model in [`classify_scan`]'s order.
+    /// first the hit cells in beam order (see [`UpdateListener`] for the face band), then the
+    /// freed cells in increasing index order; with the cone model in [`classify_scan`]'s order.
     #[inline]
     pub fn insert_scan_with(
         &mut self,
@@ -1506,7 +1550,17 @@ mod tests {
                 .map(|c| (c.0, c.1, c.2))
                 .collect();
             want_frees.sort_unstable();
-            prop_assert_eq!(&got[..hits], &want_hits[..]);
+            if matches!(cfg.model.kind(), InverseModelKind::FaceBand { .. }) {
+                // A band is walked backwards from its ray's end where that is in the grid
+                // (`Rays::band_back`): the same cells and values, each beam's in either order.
+                let mut got_hits = got[..hits].to_vec();
+                got_hits.sort_unstable();
+                let mut want_hits = want_hits;
+                want_hits.sort_unstable();
+                prop_assert_eq!(got_hits, want_hits);
+            } else {
+                prop_assert_eq!(&got[..hits], &want_hits[..]);
+            }
             prop_assert_eq!(&got[hits..], &want_frees[..]);
             prop_assert_eq!(mapper.grid().cells(), &want[..]);
             prop_assert_eq!(quiet.grid().cells(), &want[..]);

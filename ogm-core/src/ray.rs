@@ -273,6 +273,35 @@ impl Ray {
         })
     }
 
+    /// The 32-bit walk over the last `cells` cells of the ray (`1 ≤ cells ≤ N + 1`), backwards
+    /// from its last cell, whose row-major index (in a grid `width` wide) is `end_index`; `None`
+    /// if `2N` does not fit an `i32`. Only for a ray whose last cell is in the grid.
+    ///
+    /// No division, unlike [`Ray::index_walk`] from a step other than 0: at step `N` the
+    /// remainder `(2N·a + N) mod 2N` is `N`, and a step back subtracts `2a` from it, taking the
+    /// minor step back when it drops below 0 (the forward step's mirror image, so the cells are
+    /// exactly the forward walk's, in reverse: `tests::backward_walk_is_the_forward_walk_reversed`).
+    #[inline]
+    pub(crate) fn index_walk_back(
+        &self,
+        end_index: usize,
+        cells: u32,
+        width: u16,
+    ) -> Option<IndexWalk> {
+        let two_n = i32::try_from(2 * self.n).ok()?;
+        let (major, minor) = self.strides(width);
+        Some(IndexWalk {
+            index: end_index,
+            // N < 2N ≤ i32::MAX (for N = 0, g = 0 and 2a = 0: the walk never wraps).
+            g: two_n / 2,
+            two_a: (2 * self.minor_delta) as i32,
+            two_n,
+            major: major.wrapping_neg(),
+            minor: minor.wrapping_neg(),
+            left: cells,
+        })
+    }
+
     /// [`Ray::for_each_index`] that stops as soon as `f` returns `false`.
     ///
     /// Two loops with the same sequence: [`IndexWalk`]'s 32-bit state whenever `2N` fits an
@@ -1055,6 +1084,31 @@ mod tests {
             if let Some(&(step, idx)) = slow.get(slow.len() / 2) {
                 prop_assert_eq!(r.find_step(s, w, |i| i == idx), Some(step));
             }
+        }
+
+        /// The walk back from a ray's last cell visits the forward walk's last cells, in
+        /// reverse, for any number of them (the mapper walks a face band that way).
+        #[test]
+        fn backward_walk_is_the_forward_walk_reversed(x0 in 0i32..300, y0 in 0i32..300,
+                                                      x1 in 0i32..300, y1 in 0i32..300,
+                                                      w in 1u16..300, h in 1u16..300, cut in 0u64..700) {
+            let (x0, x1) = (x0 % i32::from(w), x1 % i32::from(w));
+            let (y0, y1) = (y0 % i32::from(h), y1 % i32::from(h));
+            let r = Ray::new(c(x0, y0), c(x1, y1));
+            let all = Steps { first: 0, last: r.steps() };
+            let mut forward = Vec::new();
+            r.walk_u64(all, w, |_, idx| { forward.push(idx); true });
+            let cells = (r.steps() + 1 - cut.min(r.steps())) as u32;
+            let end = (y1 * i32::from(w) + x1) as usize;
+            prop_assert_eq!(forward.last().copied(), Some(end));
+            let mut wk = r.index_walk_back(end, cells, w).unwrap();
+            let mut back = Vec::new();
+            while wk.take(1) == 1 {
+                back.push(wk.index());
+                wk.advance();
+            }
+            back.reverse();
+            prop_assert_eq!(&back[..], &forward[forward.len() - cells as usize..]);
         }
     }
 }
