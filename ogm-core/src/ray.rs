@@ -14,6 +14,7 @@
 //! the start is `i · len / N` with `len/N ∈ [1, √2]` — the forward sensor model uses that scale.
 
 use crate::geometry::CellCoord;
+use core::num::{NonZeroU128, NonZeroU32, NonZeroU64};
 
 /// A ray between two cells (either may lie outside the grid).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -75,22 +76,23 @@ impl Ray {
     #[inline]
     fn quot_rem(&self, i: u64) -> (u64, u64) {
         let n = self.n;
-        if n == 0 {
+        // n < 2^33 (coordinates are i32), so 2n and 2a fit a u64. A non-zero divisor by type:
+        // no division-by-zero panic path in the binary.
+        let Some(two_n) = NonZeroU64::new(2 * n) else {
             return (0, 0);
-        }
+        };
         if i == 0 {
             return (0, n);
         }
-        // n < 2^33 (coordinates are i32), so 2n and 2a fit a u64.
-        let (two_n, two_a) = (2 * n, 2 * self.minor_delta);
+        let two_a = 2 * self.minor_delta;
         match i.checked_mul(two_a).and_then(|p| p.checked_add(n)) {
-            Some(num) => match (u32::try_from(num), u32::try_from(two_n)) {
+            Some(num) => match (u32::try_from(num), NonZeroU32::try_from(two_n)) {
                 (Ok(num), Ok(den)) => (u64::from(num / den), u64::from(num % den)),
                 _ => (num / two_n, num % two_n),
             },
             None => {
                 let num = u128::from(i) * u128::from(two_a) + u128::from(n);
-                let den = u128::from(two_n);
+                let den = NonZeroU128::from(two_n);
                 // q ≤ i (as a ≤ N) and r < 2N: both fit a u64.
                 ((num / den) as u64, (num % den) as u64)
             }
