@@ -28,7 +28,7 @@ use crate::fixed::{Clamp, LogOdds};
 use crate::geometry::{CellCoord, GridGeometry, Pose};
 use crate::grid::LogOddsGrid;
 use crate::hal::{Beam, Range};
-use crate::ray::{IndexWalk, Ray, Steps};
+use crate::ray::{GridRay, IndexWalk, Ray, Steps};
 use crate::sensor_model::{
     face_band_delta, InverseModelKind, InverseSensorModel, FACE_BAND_REACH_EIGHTHS,
 };
@@ -516,6 +516,14 @@ impl<'a> Rays<'a> {
         Some((ray, steps))
     }
 
+    /// The ray to `end` when it and the pose's cell are both in the grid (the usual case), set
+    /// up in 32 bits; `None` otherwise ([`Rays::in_grid`] then clips it).
+    #[inline]
+    fn grid_ray(&self, end: CellCoord) -> Option<GridRay> {
+        (self.origin_inside && self.g.contains(end))
+            .then(|| GridRay::new(self.origin, end, self.g.width()))
+    }
+
     /// The walk over the face band of a reading at `range` mm whose ray (traced to `range` plus
     /// the band's reach) ends at `end`, backwards from `end`, with the offset past the reading of
     /// its first cell (`end`'s) and of each step, in eighths of σ, Q16 (for [`face_slot`]): the
@@ -524,7 +532,7 @@ impl<'a> Rays<'a> {
     /// has no cell.
     ///
     /// The same cells and offsets as [`Rays::band`]'s walk, in reverse, without its clipping and
-    /// the division that finds where its walk starts ([`Ray::index_walk_back`]): step `k` lies
+    /// the division that finds where its walk starts ([`GridRay::walk_back`]): step `k` lies
     /// `(n − k)·dt` before the end, which is `8·reach/σ` past the reading (`reach_t`).
     #[inline]
     fn band_back(
@@ -533,13 +541,14 @@ impl<'a> Rays<'a> {
         range: u32,
         end: Option<CellCoord>,
     ) -> Option<(IndexWalk, (i32, i32))> {
-        let end = end.filter(|_| self.origin_inside)?;
+        let end = end?;
+        let ray = self.grid_ray(end)?;
         let end_index = self.g.index(end)?;
-        let ray = Ray::new(self.origin, end);
-        let n = ray.steps();
+        let n = u64::from(ray.steps());
         let traced = range.saturating_add(b.reach_mm);
-        let cells = n.checked_sub(b.first_step(range, traced, n))? + 1;
-        let walk = ray.index_walk_back(end_index, u32::try_from(cells).ok()?, self.g.width())?;
+        // N < 2^16: the count fits a u32.
+        let cells = (n.checked_sub(b.first_step(range, traced, n))? + 1) as u32;
+        let walk = ray.walk_back(end_index, cells);
         // reach_t ≤ 12·2^16 and dt ≤ 2^21 (`Band::of`, `Band::step_t`): both fit an i32.
         Some((walk, (b.reach_t as i32, -(b.step_t(traced, n) as i32))))
     }
@@ -986,16 +995,20 @@ fn insert_beam_model<L: UpdateListener>(
             }
             n_hits += 1;
         }
-        let Some((ray, steps)) = rays.in_grid(end) else {
-            continue;
-        };
-        match ray.index_walk(steps, width) {
-            Some(walk) => walk.mark_all(marks),
-            None => ray.for_each_index(steps, width, |_, i| {
-                if let Some(word) = marks.get_mut(i / 32) {
-                    *word |= 1 << (i % 32);
-                }
-            }),
+        if let Some(ray) = rays.grid_ray(end) {
+            ray.walk().mark_all(marks);
+        } else {
+            let Some((ray, steps)) = rays.in_grid(end) else {
+                continue;
+            };
+            match ray.index_walk(steps, width) {
+                Some(walk) => walk.mark_all(marks),
+                None => ray.for_each_index(steps, width, |_, i| {
+                    if let Some(word) = marks.get_mut(i / 32) {
+                        *word |= 1 << (i % 32);
+                    }
+                }),
+            }
         }
         area.cover(rays.origin, end);
     }
