@@ -161,6 +161,22 @@ impl Angle {
         self.wrapping_add(Angle::QUARTER).sin_q30()
     }
 
+    /// `(self.cos_q30(), self.sin_q30())`, the quadrant decoded once: `cos θ = sin(θ + ¼ turn)`
+    /// lies one quadrant on at the same offset within it (`tests::cos_sin_match_each`).
+    #[inline]
+    pub fn cos_sin_q30(self) -> (i32, i32) {
+        let a = u32::from(self.0);
+        let x = a & 0x3FFF;
+        // The sine of the offset within the quadrant and of its complement.
+        let (u, v) = (quarter_sin(x), quarter_sin(16384 - x));
+        match a >> 14 {
+            0 => (v, u),
+            1 => (-u, v),
+            2 => (-v, -u),
+            _ => (u, -v),
+        }
+    }
+
     /// The direction of the vector (dx, dy); `atan2(0, 0)` is zero.
     pub fn atan2(dy: i64, dx: i64) -> Angle {
         if dx == 0 && dy == 0 {
@@ -195,6 +211,14 @@ impl Angle {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cos_sin_match_each() {
+        for a in 0..=u16::MAX {
+            let ang = Angle(a);
+            assert_eq!(ang.cos_sin_q30(), (ang.cos_q30(), ang.sin_q30()), "{a}");
+        }
+    }
 
     #[test]
     fn sin_cos_match_f64() {

@@ -32,13 +32,23 @@ impl Pose {
     /// The world point (mm, as i64 so nothing overflows) at `range_mm` along the direction
     /// `heading + beam`.
     pub fn beam_end(&self, beam: Angle, range_mm: u32) -> (i64, i64) {
-        let dir = self.heading.wrapping_add(beam);
+        let (dx, dy) = self.beam_offset(beam, range_mm);
+        (i64::from(self.x_mm) + dx, i64::from(self.y_mm) + dy)
+    }
+
+    /// [`Pose::beam_end`] relative to the pose: `(dx, dy)` in mm, each of magnitude at most
+    /// `range_mm`.
+    #[inline]
+    pub fn beam_offset(&self, beam: Angle, range_mm: u32) -> (i64, i64) {
+        let (cos, sin) = self.heading.wrapping_add(beam).cos_sin_q30();
         let r = i64::from(range_mm);
         let half = i64::from(Q30_ONE) / 2;
-        // Round to nearest mm (the shift floors; adding half first rounds).
-        let dx = (r * i64::from(dir.cos_q30()) + half) >> 30;
-        let dy = (r * i64::from(dir.sin_q30()) + half) >> 30;
-        (i64::from(self.x_mm) + dx, i64::from(self.y_mm) + dy)
+        // Round to nearest mm (the shift floors; adding half first rounds). |cos|, |sin| ≤ 2^30,
+        // so |r·cos + half| >> 30 ≤ r.
+        (
+            (r * i64::from(cos) + half) >> 30,
+            (r * i64::from(sin) + half) >> 30,
+        )
     }
 }
 

@@ -477,18 +477,35 @@ struct Rays<'a> {
     to_cell: PointToCell,
     origin: CellCoord,
     origin_inside: bool,
+    /// The pose relative to the grid's origin, in mm, when both coordinates lie within ±2^30
+    /// and the cell size fits an `i32` (every real map): then a beam end's cell is found in
+    /// 32 bits ([`Rays::end`]).
+    pose_in_grid_mm: Option<(i32, i32)>,
 }
+
+/// Readings shorter than this (mm) take [`Rays::end`]'s 32-bit path.
+const SHORT_RANGE_MM: u32 = 1 << 30;
 
 impl<'a> Rays<'a> {
     fn new(g: &'a GridGeometry, pose: &'a Pose) -> Self {
         let to_cell = PointToCell::new(g);
         let origin = to_cell.cell(i64::from(pose.x_mm), i64::from(pose.y_mm));
+        let within = |v: i64| (v.unsigned_abs() < 1 << 30).then_some(v as i32);
+        let pose_in_grid_mm = match (
+            to_cell.cell_mm > 0,
+            within(i64::from(pose.x_mm) - to_cell.origin.0),
+            within(i64::from(pose.y_mm) - to_cell.origin.1),
+        ) {
+            (true, Some(x), Some(y)) => Some((x, y)),
+            _ => None,
+        };
         Rays {
             g,
             pose,
             to_cell,
             origin,
             origin_inside: g.contains(origin),
+            pose_in_grid_mm,
         }
     }
 
@@ -496,7 +513,22 @@ impl<'a> Rays<'a> {
     /// its sine lookups and divisions would otherwise be copied into every pass.
     #[inline(never)]
     fn end(&self, range: u32, angle: Angle) -> CellCoord {
-        let (x, y) = self.pose.beam_end(angle, range);
+        let (dx, dy) = self.pose.beam_offset(angle, range);
+        if let Some((px, py)) = self.pose_in_grid_mm.filter(|_| range < SHORT_RANGE_MM) {
+            // |p| < 2^30 and |d| ≤ range < 2^30: the point relative to the grid's origin fits
+            // an i32, and it is `PointToCell::cell`'s, so the same cell.
+            let (x, y) = (px + dx as i32, py + dy as i32);
+            if let (Some(x), Some(y)) = (
+                x.checked_div_euclid(self.to_cell.cell_mm),
+                y.checked_div_euclid(self.to_cell.cell_mm),
+            ) {
+                return CellCoord { x, y };
+            }
+        }
+        let (x, y) = (
+            i64::from(self.pose.x_mm) + dx,
+            i64::from(self.pose.y_mm) + dy,
+        );
         self.to_cell.cell(x, y)
     }
 
@@ -1621,6 +1653,16 @@ mod tests {
                                           x in prop_oneof![-100_000i64..100_000, any::<i64>()],
                                           y in prop_oneof![-100_000i64..100_000, any::<i64>()]) {
             prop_assert_eq!(PointToCell::new(&g).cell(x, y), g.cell_of_point(x, y));
+        }
+
+        /// A beam's end cell (32-bit path or not) is the cell of `Pose::beam_end`'s point.
+        #[test]
+        fn beam_end_cell_matches_geometry(g in geometry(), x in mm(), y in mm(), heading in any::<u16>(),
+                                          angle in any::<u16>(),
+                                          range in prop_oneof![0u32..20_000, (1u32 << 30) - 2..(1 << 30) + 2, any::<u32>()]) {
+            let pose = Pose { x_mm: x, y_mm: y, heading: Angle(heading) };
+            let (px, py) = pose.beam_end(Angle(angle), range);
+            prop_assert_eq!(Rays::new(&g, &pose).end(range, Angle(angle)), g.cell_of_point(px, py));
         }
 
         /// `classify_scan` (beam model) makes exactly the calls, in exactly the order, of the

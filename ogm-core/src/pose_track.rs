@@ -187,10 +187,8 @@ impl Mount {
     /// The sensor's pose in the world when the robot is at `robot` (rounded to the nearest mm;
     /// saturating at the `i32` range).
     pub fn sensor_pose(&self, robot: &Pose) -> Pose {
-        let (c, s) = (
-            i64::from(robot.heading.cos_q30()),
-            i64::from(robot.heading.sin_q30()),
-        );
+        let (c, s) = robot.heading.cos_sin_q30();
+        let (c, s) = (i64::from(c), i64::from(s));
         let (mx, my) = (i64::from(self.x_mm), i64::from(self.y_mm));
         let half = i64::from(Q30_ONE) / 2;
         let dx = (mx * c - my * s + half) >> 30;
