@@ -456,17 +456,15 @@ impl BandRay {
     }
 }
 
-/// The face table slot (offset in eighths of σ, + R, so `0 ..= 2R`) of an offset `t` in eighths
-/// of σ, Q16: [`BandRay::eighths`]'s rounding and clamp, in 32 bits.
+/// The face table slot ([`face_deltas`]) of an offset `t` in eighths of σ, Q16, on a band
+/// (`−36·2^16 ≤ t ≤ 12·2^16`, [`Rays::band`]): [`BandRay::eighths`]'s rounding half away from
+/// zero, + [`FACE_LOW`]; the table holds the clamp, so none is needed here.
 #[inline(always)]
 fn face_slot(t: i32) -> usize {
-    // |t| ≤ 2^31: no overflow.
-    let r = ((t.unsigned_abs() + (1 << 15)) >> 16).min(FACE_REACH as u32) as usize;
-    if t < 0 {
-        FACE_REACH as usize - r
-    } else {
-        FACE_REACH as usize + r
-    }
+    // Half away from zero: ⌊(t + 2^15)/2^16⌋ for t ≥ 0, and for t < 0 ⌈(t − 2^15)/2^16⌉, which
+    // is ⌊(t + 2^15 − 1)/2^16⌋. Saturating: outside a band's range the slot is past the table.
+    let r = t.saturating_add((1 << 15) + (t >> 31)) >> 16;
+    r.wrapping_add(FACE_LOW) as usize
 }
 
 /// A scan's rays from the pose's cell: where a beam's ray ends and which of its steps lie in
@@ -936,10 +934,18 @@ impl ScanBox {
 /// [`FACE_BAND_REACH_EIGHTHS`] as an `i32`.
 const FACE_REACH: i32 = FACE_BAND_REACH_EIGHTHS as i32;
 
-/// The face band's updates by eighths of σ past the reading, `−R ..= R`, once per scan.
-fn face_deltas(update: &Update) -> [i32; 2 * FACE_BAND_REACH_EIGHTHS as usize + 1] {
-    // j ≤ 2R = 24: fits an i8.
-    core::array::from_fn(|j| face_band_delta(update.occ, update.free, j as i8 - FACE_REACH as i8))
+/// How far before the reading, in eighths of σ, the face table reaches: a band's offsets lie
+/// within `−36 ..= R` eighths ([`Rays::band`]); those before `−R` get the update of `−R`.
+const FACE_LOW: i32 = 40;
+
+/// The face band's updates by eighths of σ past the reading, `−FACE_LOW ..= R` (clamped to
+/// `−R ..= R`), once per scan: a band walk looks each cell's up without a clamp.
+fn face_deltas(update: &Update) -> [i32; (FACE_LOW + FACE_REACH + 1) as usize] {
+    core::array::from_fn(|j| {
+        // |j − FACE_LOW| ≤ 40 and then ≤ R = 12: fits an i8.
+        let t8 = (j as i32 - FACE_LOW).clamp(-FACE_REACH, FACE_REACH);
+        face_band_delta(update.occ, update.free, t8 as i8)
+    })
 }
 
 /// Hit cells remembered between marking and applying the hits, so that their end points are
@@ -1062,7 +1068,7 @@ fn insert_beam_model<L: UpdateListener>(
             };
             let end = hits.get(k).and_then(|&v| unpack_end(v));
             k += 1;
-            // Claims band cell `i` at face slot `slot` (its offset in eighths of σ, + R).
+            // Claims band cell `i` at face slot `slot` (its offset in eighths of σ, + FACE_LOW).
             let mut claim = |i: usize, slot: usize| {
                 let (w, bit) = (i / 32, 1u32 << (i % 32));
                 if let (Some(word), Some(cell)) = (marks.get_mut(w), cells.get_mut(i)) {
@@ -1089,7 +1095,7 @@ fn insert_beam_model<L: UpdateListener>(
                         Some(walk) => (walk, band.offsets()),
                         None => {
                             band.ray.for_each_index(band.steps, width, |k, i| {
-                                claim(i, (i32::from(band.eighths(k)) + FACE_REACH) as usize)
+                                claim(i, (i32::from(band.eighths(k)) + FACE_LOW) as usize)
                             });
                             continue;
                         }
@@ -1618,13 +1624,15 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(1000))]
 
-        /// The band walk's 32-bit face slot rounds and clamps like `BandRay::eighths`.
+        /// The band walk's 32-bit face slot finds the update of `BandRay::eighths`'s rounded
+        /// and clamped offset, over a band's range of offsets.
         #[test]
-        fn face_slot_matches_eighths(t in prop_oneof![(-30i32..30).prop_map(|k| k << 15),
-                -(13i32 << 16)..(13 << 16), any::<i32>()]) {
-            let r = ((u64::from(t.unsigned_abs()) + (1 << 15)) >> 16).min(12) as i32;
-            let want = if t < 0 { -r } else { r };
-            prop_assert_eq!(face_slot(t) as i32 - FACE_REACH, want);
+        fn face_slot_matches_eighths(t in prop_oneof![(-36i32..=24).prop_map(|k| k << 15),
+                -(36i32 << 16)..=(12 << 16)], occ in 1i32..2000, free in -2000i32..0) {
+            let r = ((u64::from(t.unsigned_abs()) + (1 << 15)) >> 16).min(12) as i8;
+            let want = face_band_delta(occ, free, if t < 0 { -r } else { r });
+            let update = Update { occ, free, min: -30_000, max: 30_000 };
+            prop_assert_eq!(face_deltas(&update).get(face_slot(t)).copied(), Some(want));
         }
 
         /// A packed end cell unpacks to itself, or to nothing (then it is computed again).
