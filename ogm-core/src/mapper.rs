@@ -389,10 +389,19 @@ impl Band {
     /// The first step of the band on a ray of `n` steps traced to `traced` mm for a reading at
     /// `range` mm: the first step at least `reach` before the reading (step k lies k/n of the
     /// way, which is exact along the ray's major axis).
+    #[inline]
     fn first_step(&self, range: u32, traced: u32, n: u64) -> u64 {
-        let before = u64::from(range.saturating_sub(self.reach_mm));
-        // Saturating: only absurd rays come near the u64 range.
-        div_u64(before.saturating_mul(n), u64::from(traced.max(1)), true)
+        let before = range.saturating_sub(self.reach_mm);
+        // In 32 bits when the product fits (a robot's readings on a grid of under 2^16 cells a
+        // side), else saturating in 64: only absurd rays come near the u64 range.
+        match u32::try_from(n).ok().and_then(|n| before.checked_mul(n)) {
+            Some(p) => u64::from(p.div_ceil(traced.max(1))),
+            None => div_u64(
+                u64::from(before).saturating_mul(n),
+                u64::from(traced.max(1)),
+                true,
+            ),
+        }
     }
 
     /// The offset of one step past the one before, in eighths of σ, Q16 (≤ 2^21), on a ray of
@@ -1633,6 +1642,21 @@ mod tests {
             let want = face_band_delta(occ, free, if t < 0 { -r } else { r });
             let update = Update { occ, free, min: -30_000, max: 30_000 };
             prop_assert_eq!(face_deltas(&update).get(face_slot(t)).copied(), Some(want));
+        }
+
+        /// The band's first step in 32 bits equals the 64-bit formula.
+        #[test]
+        fn band_first_step_matches_u64(sigma in 1u32..200, range in prop_oneof![0u32..20_000, any::<u32>()],
+                                       n in prop_oneof![0u64..70_000, any::<u64>()]) {
+            let cfg = MapperConfig {
+                model: InverseSensorModel::hahnel_face_band(sigma).unwrap(),
+                ..MapperConfig::new(20_000)
+            };
+            let b = Band::of(&cfg).unwrap();
+            let traced = range.saturating_add(b.reach_mm);
+            let before = u64::from(range.saturating_sub(b.reach_mm));
+            let want = before.saturating_mul(n).div_ceil(u64::from(traced.max(1)));
+            prop_assert_eq!(b.first_step(range, traced, n), want);
         }
 
         /// A packed end cell unpacks to itself, or to nothing (then it is computed again).
