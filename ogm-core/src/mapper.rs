@@ -1224,50 +1224,90 @@ fn free_words<L: UpdateListener>(
         if *word == 0 {
             continue;
         }
-        let mut bits = core::mem::take(word);
+        let bits = core::mem::take(word);
         // The words of in-grid cells: base + 31 < 2^32 · 32, no overflow.
         let base = (first + k) * 32;
-        if LANE_SWEEP && L::REPORTS == Reports::Nothing {
-            // A whole word of cells (all but possibly the grid's last word).
-            let lanes = cells
-                .get_mut(base..base + 32)
-                .and_then(|c| <&mut [LogOdds; 32]>::try_from(c).ok());
-            if let Some(lanes) = lanes {
+        // Marked cells are in the grid (marking sets no bit past its end), so all are freed:
+        // counted per word on a 32-bit core (one register fewer in its loop), per cell on a
+        // 64-bit host (which has no cheaper count without `popcnt`) unless lane-wise.
+        if !LANE_SWEEP {
+            freed += bits.count_ones();
+        }
+        // A whole word of cells (all but possibly the grid's last word): no bounds check per
+        // cell.
+        let lanes = cells
+            .get_mut(base..base + 32)
+            .and_then(|c| <&mut [LogOdds; 32]>::try_from(c).ok());
+        let fresh = match lanes {
+            Some(lanes) if LANE_SWEEP && L::REPORTS == Reports::Nothing => {
                 update.free_lanes(lanes, bits);
                 freed += bits.count_ones();
                 continue;
             }
-        }
-        // With `Reports::Notable`: the word's cells that were unobserved, told as one word.
-        let mut fresh = 0u32;
-        // Marked cells are in the grid (marking sets no bit past its end), so all are freed:
-        // counted per word on a 32-bit core (one register fewer in its loop), per cell on a
-        // 64-bit host (which has no cheaper count without `popcnt`).
-        if !LANE_SWEEP {
-            freed += bits.count_ones();
-        }
-        while bits != 0 {
-            let b = bits.trailing_zeros();
-            let i = base + b as usize;
-            // Clears the lowest set bit.
-            bits &= bits - 1;
-            if let Some(cell) = cells.get_mut(i) {
-                let before = *cell;
-                let after = update.apply(before, update.free);
-                *cell = after;
-                freed += u32::from(LANE_SWEEP);
-                if L::REPORTS == Reports::Notable && before.0 == 0 {
-                    fresh |= 1 << b;
-                } else if hears_freed::<L>(before, after) {
-                    listener.changed(i, before, after);
-                }
+            Some(lanes) => free_bits(bits, base, update, listener, &mut freed, lanes),
+            None => {
+                let tail = cells.get_mut(base..).unwrap_or(&mut []);
+                free_bits(bits, base, update, listener, &mut freed, tail)
             }
-        }
+        };
         if fresh != 0 {
             listener.fresh_word(first + k, fresh, update.apply(LogOdds(0), update.free));
         }
     }
     freed
+}
+
+/// The cells of one mark word, from its bit 0 on: a whole word's 32 (no bounds check per cell)
+/// or the grid's last, shorter word's.
+trait WordCells {
+    /// The cell of bit `b` (< 32), if there is one.
+    fn cell(&mut self, b: u32) -> Option<&mut LogOdds>;
+}
+
+impl WordCells for [LogOdds; 32] {
+    #[inline(always)]
+    fn cell(&mut self, b: u32) -> Option<&mut LogOdds> {
+        Some(&mut self[b as usize % 32])
+    }
+}
+
+impl WordCells for [LogOdds] {
+    #[inline(always)]
+    fn cell(&mut self, b: u32) -> Option<&mut LogOdds> {
+        self.get_mut(b as usize)
+    }
+}
+
+/// [`free_words`]' loop over the set bits of one word, `base` being the index of its bit 0;
+/// returns, with [`Reports::Notable`], the bits of the cells that were unobserved (told
+/// afterwards as one word), else 0.
+#[inline(always)]
+fn free_bits<L: UpdateListener, W: WordCells + ?Sized>(
+    mut bits: u32,
+    base: usize,
+    update: Update,
+    listener: &mut L,
+    freed: &mut u32,
+    cells: &mut W,
+) -> u32 {
+    let mut fresh = 0u32;
+    while bits != 0 {
+        let b = bits.trailing_zeros();
+        // Clears the lowest set bit.
+        bits &= bits - 1;
+        if let Some(cell) = cells.cell(b) {
+            let before = *cell;
+            let after = update.apply(before, update.free);
+            *cell = after;
+            *freed += u32::from(LANE_SWEEP);
+            if L::REPORTS == Reports::Notable && before.0 == 0 {
+                fresh |= 1 << b;
+            } else if hears_freed::<L>(before, after) {
+                listener.changed(base + b as usize, before, after);
+            }
+        }
+    }
+    fresh
 }
 
 /// The online mapper: a log-odds grid plus the per-scan mark bitset.
