@@ -995,8 +995,54 @@ where
         let s = u32::from(self.config.tile_shift);
         let (cx0, cy0) = (self.cx0 as u32, self.cy0 as u32);
         let (last_tx, last_ty) = (self.tiles_x - 1, self.tiles_y - 1);
-        let (mut lo, mut hi, mut ty) = self.mark_row;
         let (mut cols_ty, mut cols) = self.marked_cols;
+        if w % 32 == 0 && s <= 5 {
+            // Rows that start on a word boundary (the mapper then passes one row's words) and
+            // tiles no wider than a word (the firmware's grid): a tile's cells in a word are the
+            // bits below where the next tile starts, so a word costs a few instructions per tile
+            // it holds rather than a tile search per run of set bits.
+            let Some(start) = first.checked_mul(32).filter(|&i| i < len) else {
+                return;
+            };
+            let y = start / w;
+            let ty = ((y as u32).saturating_sub(cy0) >> s).min(last_ty);
+            if cols_ty != ty {
+                (cols_ty, cols) = (ty, 0);
+            }
+            // Column of the first word's bit 0 (< w ≤ 65535), and of each next word's.
+            let mut x = (start - y * w) as u32;
+            for &word in words {
+                if x as usize >= w {
+                    break;
+                }
+                let (mut bits, mut tx) = (word, (x.saturating_sub(cx0) >> s).min(last_tx));
+                while bits != 0 {
+                    // Tile tx's bits: those below the column where tile tx + 1 starts, which
+                    // lies past x (the last tile column takes the rest of the row).
+                    let below = if tx >= last_tx {
+                        u32::MAX
+                    } else {
+                        let next = (cx0 + ((tx + 1) << s)).saturating_sub(x);
+                        if next >= 32 {
+                            u32::MAX
+                        } else {
+                            (1 << next) - 1
+                        }
+                    };
+                    let col = if tx < 32 { 1u32 << tx } else { 0 };
+                    if bits & below != 0 && cols & col == 0 {
+                        self.hot.mark(tx, ty);
+                        cols |= col;
+                    }
+                    bits &= !below;
+                    tx += 1;
+                }
+                x += 32;
+            }
+            self.marked_cols = (cols_ty, cols);
+            return;
+        }
+        let (mut lo, mut hi, mut ty) = self.mark_row;
         for (k, &word) in words.iter().enumerate() {
             let mut bits = word;
             // Indices ≤ len + 31 < 2^32 (a grid has at most 65535² cells) below `len`.
@@ -2404,19 +2450,31 @@ mod tests {
         /// A mark word's tiles are exactly those its cells would mark one by one, also after
         /// visits took or aged marks in between (rounds of words, then sampler steps).
         #[test]
-        fn marked_words_mark_the_tiles_of_their_cells(w in 12u16..80, h in 12u16..40,
-                tile_shift in 2u8..6,
+        fn marked_words_mark_the_tiles_of_their_cells(
+                w in prop_oneof![12u16..80, (1u16..4).prop_map(|k| 32 * k)], h in 12u16..40,
+                tile_shift in 2u8..7,
                 rounds in proptest::collection::vec(
-                    proptest::collection::vec((0usize..120, any::<u32>()), 1..6), 1..4)) {
+                    proptest::collection::vec((0usize..120, proptest::collection::vec(any::<u32>(), 1..4)), 1..6), 1..4)) {
             let g = GridGeometry::new(w, h, 50, 0, 0).unwrap();
             let (mut by_word, mut st_w, map) = sampler(g, tile_shift);
             let (mut by_cell, mut st_c, _) = sampler(g, tile_shift);
+            let row_words = usize::from(w) / 32;
             for words in &rounds {
-                for &(word, bits) in words {
-                    by_word.note_marked_words(word, &[bits]);
-                    for i in (0..32).filter(|b| bits & (1 << b) != 0).map(|b| 32 * word + b) {
-                        if i < g.len() {
-                            by_cell.note_changed(i, LogOdds(5), LogOdds(3));
+                for (word, bits) in words {
+                    // As the mapper passes them: the words of one row (rows that start on a word
+                    // boundary), or any run of words.
+                    let mut word = *word;
+                    let mut bits = bits.as_slice();
+                    if w % 32 == 0 {
+                        word %= row_words * usize::from(h);
+                        bits = &bits[..bits.len().min(row_words - word % row_words)];
+                    }
+                    by_word.note_marked_words(word, bits);
+                    for (k, &bits) in bits.iter().enumerate() {
+                        for i in (0..32).filter(|b| bits & (1 << b) != 0).map(|b| 32 * (word + k) + b) {
+                            if i < g.len() {
+                                by_cell.note_changed(i, LogOdds(5), LogOdds(3));
+                            }
                         }
                     }
                 }
