@@ -554,6 +554,10 @@ pub struct Buffers<B, C, L, K> {
     pub blocks: K,
 }
 
+/// Entries of [`Gibbs`]'s estimate-restart memo (a power of two: the slot is the value's low
+/// bits).
+const RESTARTS: usize = 64;
+
 /// The sampler, over caller storage (see [`Buffers`]).
 #[derive(Clone, Debug)]
 pub struct Gibbs<P, B, C, L, K, N = u8> {
@@ -604,10 +608,11 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     /// marking is idempotent until a visit takes a mark or ages a tile (then it is emptied,
     /// with `hot_span`).
     marked_cols: (u32, u32),
-    /// The last estimate restart ([`Gibbs::note_estimate`]): the log-odds and the estimate it
-    /// gives. A scan restarts most cells at a few values (all its first-observed free cells at
-    /// the free update), so this spares most restarts the probability lookup.
-    restart: (LogOdds, N),
+    /// Recent estimate restarts ([`Gibbs::note_estimate`]): log-odds and the estimate each
+    /// gives, entry `v mod RESTARTS` for the value `v`. A scan restarts most cells at a few
+    /// values (its first-observed free cells at the free update, its face band's at one value
+    /// per band slot), so this spares most restarts the probability lookup.
+    restart: [(LogOdds, N); RESTARTS],
     /// The estimate's averaging shift on this tile visit ([`Estimator::shift_at`]).
     visit_shift: AverageShift,
     /// The evidence update's candidate weights (only the entries an update wrote are read).
@@ -824,10 +829,11 @@ where
             hot_span: (1, 0),
             mark_row: (1, 0, 0),
             marked_cols: (u32::MAX, 0),
-            restart: (
-                LogOdds(0),
-                N::from_probability_q16(estimate::probability_q16(LogOdds(0))),
-            ),
+            // Entry k holds value k: each entry's value maps to its own slot.
+            restart: core::array::from_fn(|k| {
+                let v = LogOdds(k as i16);
+                (v, N::from_probability_q16(estimate::probability_q16(v)))
+            }),
             visit_shift: AverageShift::new(config.estimator.shift_at(0)),
             scratch: [0; MAX_CANDIDATES + 1],
             ev_gain: 0,
@@ -1095,13 +1101,20 @@ where
         }
     }
 
-    /// The estimate a restart at `now` sets, through the one-entry memo `restart`.
+    /// The estimate a restart at `now` sets, through the memo `restart`.
     #[inline]
     fn restart_at(&mut self, now: LogOdds) -> N {
-        if self.restart.0 != now {
-            self.restart = (now, N::from_probability_q16(estimate::probability_q16(now)));
+        let slot = usize::from(now.0 as u16) % RESTARTS;
+        match self.restart.get_mut(slot) {
+            Some(&mut (v, c)) if v == now => c,
+            entry => {
+                let c = N::from_probability_q16(estimate::probability_q16(now));
+                if let Some(e) = entry {
+                    *e = (now, c);
+                }
+                c
+            }
         }
-        self.restart.1
     }
 
     /// [`Gibbs::note_estimate`] for the cells `32·word + b` of each bit `b` set in `bits`, all
@@ -2445,6 +2458,19 @@ mod tests {
             }
             prop_assert_eq!(by_word.buf.sample.as_slice(), by_cell.buf.sample.as_slice());
             prop_assert_eq!(by_word.buf.counts.as_slice(), by_cell.buf.counts.as_slice());
+        }
+
+        /// The estimate-restart memo gives the probability lookup's estimate, whatever the
+        /// order of the values (repeats, collisions in a slot, negative values).
+        #[test]
+        fn restart_memo_matches_lookup(values in proptest::collection::vec(
+                prop_oneof![-300i16..300, any::<i16>()], 1..200)) {
+            let g = GridGeometry::new(40, 40, 50, 0, 0).unwrap();
+            let (mut s, _, _) = sampler(g, 3);
+            for v in values.iter().chain(values.iter().rev()) {
+                let want = u8::from_probability_q16(estimate::probability_q16(LogOdds(*v)));
+                prop_assert_eq!(s.restart_at(LogOdds(*v)), want, "{}", v);
+            }
         }
 
         /// A mark word's tiles are exactly those its cells would mark one by one, also after
