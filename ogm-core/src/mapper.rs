@@ -1301,10 +1301,14 @@ fn free_bits<L: UpdateListener, W: WordCells + ?Sized>(
             let after = update.apply(before, update.free);
             *cell = after;
             *freed += u32::from(LANE_SWEEP);
-            if L::REPORTS == Reports::Notable && before.0 == 0 {
-                fresh |= 1 << b;
-            } else if hears_freed::<L>(before, after) {
-                listener.changed(base + b as usize, before, after);
+            // One test in the common case: a cell that was unobserved (0) always makes a
+            // notable change (it ends below 0).
+            if hears_freed::<L>(before, after) {
+                if L::REPORTS == Reports::Notable && before.0 == 0 {
+                    fresh |= 1 << b;
+                } else {
+                    listener.changed(base + b as usize, before, after);
+                }
             }
         }
     }
