@@ -84,10 +84,13 @@ const fn build_atan_table() -> [u16; ATAN_STEPS + 1] {
 fn quarter_sin(x: u32) -> i32 {
     // 16384 units / 512 steps = 32 units per step.
     let i = (x >> 5) as usize;
-    let frac = (x & 31) as i64;
+    let frac = x & 31;
     let a = SIN_TABLE.get(i).copied().unwrap_or(Q30_ONE);
     let b = SIN_TABLE.get(i + 1).copied().unwrap_or(Q30_ONE);
-    (i64::from(a) + ((i64::from(b) - i64::from(a)) * frac) / 32) as i32
+    // The table rises by less than 2^27 per step (`tests::sin_table_rises`), so in 32 bits
+    // `(b − a)·frac < 2^32` and dividing it by 32 is a shift (no 64-bit multiply on a
+    // Cortex-M4); the sum stays within [0, 2^30].
+    a + ((b.wrapping_sub(a) as u32 * frac) >> 5) as i32
 }
 
 impl Angle {
@@ -211,6 +214,21 @@ impl Angle {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What `quarter_sin`'s 32-bit interpolation relies on, and that it equals the 64-bit one.
+    #[test]
+    fn sin_table_rises() {
+        for w in SIN_TABLE.windows(2) {
+            assert!(w[0] <= w[1] && w[1] - w[0] < 1 << 27, "{w:?}");
+        }
+        for x in 0..=16384u32 {
+            let i = (x >> 5) as usize;
+            let a = i64::from(SIN_TABLE.get(i).copied().unwrap_or(Q30_ONE));
+            let b = i64::from(SIN_TABLE.get(i + 1).copied().unwrap_or(Q30_ONE));
+            let want = (a + ((b - a) * i64::from(x & 31)) / 32) as i32;
+            assert_eq!(quarter_sin(x), want, "{x}");
+        }
+    }
 
     #[test]
     fn cos_sin_match_each() {
