@@ -444,16 +444,17 @@ impl GridRay {
     /// The walk over all the ray's cells, from its first.
     #[inline]
     pub(crate) fn walk(&self) -> IndexWalk {
-        // N < 2^16: 2N and N + 1 cannot overflow. At step 0 the remainder is N (`quot_rem`),
-        // so g = 2N − 1 − N (−1 for N = 0, as in `Ray::index_walk`).
+        // In a grid N < 2^16, so none of these wraps (wrapping only keeps misuse panic-free).
+        // At step 0 the remainder is N (`quot_rem`), so g = 2N − 1 − N (−1 for N = 0, as in
+        // `Ray::index_walk`).
         IndexWalk {
             index: self.from,
-            g: self.n as i32 - 1,
-            two_a: 2 * self.a as i32,
-            two_n: 2 * self.n as i32,
+            g: (self.n as i32).wrapping_sub(1),
+            two_a: (self.a as i32).wrapping_mul(2),
+            two_n: (self.n as i32).wrapping_mul(2),
             major: self.major,
             minor: self.minor,
-            left: self.n + 1,
+            left: self.n.wrapping_add(1),
         }
     }
 
@@ -469,10 +470,11 @@ impl GridRay {
     pub(crate) fn walk_back(&self, end_index: usize, cells: u32) -> IndexWalk {
         IndexWalk {
             index: end_index,
-            // In [0, 2N) (for N = 0, g = 0 and 2a = 0: the walk never wraps).
+            // In [0, 2N) (for N = 0, g = 0 and 2a = 0: the walk never wraps). N < 2^16 in a
+            // grid, as in `GridRay::walk`.
             g: self.n as i32,
-            two_a: 2 * self.a as i32,
-            two_n: 2 * self.n as i32,
+            two_a: (self.a as i32).wrapping_mul(2),
+            two_n: (self.n as i32).wrapping_mul(2),
             major: self.major.wrapping_neg(),
             minor: self.minor.wrapping_neg(),
             left: cells,
