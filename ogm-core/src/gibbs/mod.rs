@@ -558,6 +558,17 @@ pub struct Buffers<B, C, L, K> {
 /// bits).
 const RESTARTS: usize = 64;
 
+/// Marks tile `(tx, ty)` unless `cols`, the tile columns (below 32) of tile row `ty` marked
+/// since the last visit, says it is already ([`Gibbs::note_marked_words`]).
+#[inline(always)]
+fn mark_once(hot: &mut HotTiles, cols: &mut u32, tx: u32, ty: u32) {
+    let col = if tx < 32 { 1u32 << tx } else { 0 };
+    if *cols & col == 0 {
+        hot.mark(tx, ty);
+        *cols |= col;
+    }
+}
+
 /// The sampler, over caller storage (see [`Buffers`]).
 #[derive(Clone, Debug)]
 pub struct Gibbs<P, B, C, L, K, N = u8> {
@@ -999,8 +1010,8 @@ where
         }
         let w = usize::from(self.geometry.width()).max(1);
         let s = u32::from(self.config.tile_shift);
-        let (cx0, cy0) = (self.cx0 as u32, self.cy0 as u32);
-        let (last_tx, last_ty) = (self.tiles_x - 1, self.tiles_y - 1);
+        let cx0 = self.cx0 as u32;
+        let last_tx = self.tiles_x - 1;
         let (mut cols_ty, mut cols) = self.marked_cols;
         if w % 32 == 0 && s <= 5 {
             // Rows that start on a word boundary (the mapper then passes one row's words) and
@@ -1011,7 +1022,7 @@ where
                 return;
             };
             let y = start / w;
-            let ty = ((y as u32).saturating_sub(cy0) >> s).min(last_ty);
+            let ty = self.tile_row(y as u32);
             if cols_ty != ty {
                 (cols_ty, cols) = (ty, 0);
             }
@@ -1021,7 +1032,7 @@ where
                 if x as usize >= w {
                     break;
                 }
-                let (mut bits, mut tx) = (word, (x.saturating_sub(cx0) >> s).min(last_tx));
+                let (mut bits, mut tx) = (word, self.tile_col(x));
                 while bits != 0 {
                     // Tile tx's bits: those below the column where tile tx + 1 starts, which
                     // lies past x (the last tile column takes the rest of the row).
@@ -1035,10 +1046,8 @@ where
                             (1 << next) - 1
                         }
                     };
-                    let col = if tx < 32 { 1u32 << tx } else { 0 };
-                    if bits & below != 0 && cols & col == 0 {
-                        self.hot.mark(tx, ty);
-                        cols |= col;
+                    if bits & below != 0 {
+                        mark_once(&mut self.hot, &mut cols, tx, ty);
                     }
                     bits &= !below;
                     tx += 1;
@@ -1064,18 +1073,14 @@ where
                     // A new row: one division, then none for the rest of the row.
                     let y = index / w;
                     (lo, hi) = (y * w, y * w + w - 1);
-                    ty = ((y as u32).saturating_sub(cy0) >> s).min(last_ty);
+                    ty = self.tile_row(y as u32);
                 }
                 // index − lo < w ≤ 65535.
-                let tx = (((index - lo) as u32).saturating_sub(cx0) >> s).min(last_tx);
+                let tx = self.tile_col((index - lo) as u32);
                 if cols_ty != ty {
                     (cols_ty, cols) = (ty, 0);
                 }
-                let col = if tx < 32 { 1u32 << tx } else { 0 };
-                if cols & col == 0 {
-                    self.hot.mark(tx, ty);
-                    cols |= col;
-                }
+                mark_once(&mut self.hot, &mut cols, tx, ty);
                 // Clear the bits of the cells up to the tile's last in this row (≥ index).
                 let n = lo + self.tile_x_hi(tx) as usize - base + 1;
                 if n >= 32 {
@@ -1201,10 +1206,19 @@ where
         let i = index as u32;
         let y = i / w.max(1);
         let x = i - y * w;
-        let s = u32::from(self.config.tile_shift);
-        let tx = (x.saturating_sub(self.cx0 as u32) >> s).min(self.tiles_x - 1);
-        let ty = (y.saturating_sub(self.cy0 as u32) >> s).min(self.tiles_y - 1);
-        (tx, ty, (x, y))
+        (self.tile_col(x), self.tile_row(y), (x, y))
+    }
+
+    /// The tile column of grid column `x` (columns in the margin go to the nearest tile).
+    #[inline(always)]
+    fn tile_col(&self, x: u32) -> u32 {
+        (x.saturating_sub(self.cx0 as u32) >> self.config.tile_shift).min(self.tiles_x - 1)
+    }
+
+    /// The tile row of grid row `y` (rows in the margin go to the nearest tile).
+    #[inline(always)]
+    fn tile_row(&self, y: u32) -> u32 {
+        (y.saturating_sub(self.cy0 as u32) >> self.config.tile_shift).min(self.tiles_y - 1)
     }
 
     /// Starts over from the thresholded log-odds map: resets the sample, the marginals, the
