@@ -332,14 +332,21 @@ impl PointToCell {
         let dx = i32::try_from(x_mm.saturating_sub(self.origin.0));
         let dy = i32::try_from(y_mm.saturating_sub(self.origin.1));
         if let (Ok(dx), Ok(dy)) = (dx, dy) {
-            if let (Some(x), Some(y)) = (
-                dx.checked_div_euclid(self.cell_mm),
-                dy.checked_div_euclid(self.cell_mm),
-            ) {
-                return CellCoord { x, y };
+            if let Some(c) = self.cell_from_origin(dx, dy) {
+                return c;
             }
         }
         self.geometry.cell_of_point(x_mm, y_mm)
+    }
+
+    /// The cell of the point `(dx, dy)` mm from the grid's origin, unless the cell size does
+    /// not fit an `i32` (then only [`PointToCell::cell`]'s fallback can say).
+    #[inline]
+    fn cell_from_origin(&self, dx: i32, dy: i32) -> Option<CellCoord> {
+        Some(CellCoord {
+            x: dx.checked_div_euclid(self.cell_mm)?,
+            y: dy.checked_div_euclid(self.cell_mm)?,
+        })
     }
 }
 
@@ -524,12 +531,11 @@ impl<'a> Rays<'a> {
         if let Some((px, py)) = self.pose_in_grid_mm.filter(|_| range < SHORT_RANGE_MM) {
             // |p| < 2^30 and |d| ≤ range < 2^30: the point relative to the grid's origin fits
             // an i32, and it is `PointToCell::cell`'s, so the same cell.
-            let (x, y) = (px + dx as i32, py + dy as i32);
-            if let (Some(x), Some(y)) = (
-                x.checked_div_euclid(self.to_cell.cell_mm),
-                y.checked_div_euclid(self.to_cell.cell_mm),
-            ) {
-                return CellCoord { x, y };
+            if let Some(c) = self
+                .to_cell
+                .cell_from_origin(px + dx as i32, py + dy as i32)
+            {
+                return c;
             }
         }
         let (x, y) = (
