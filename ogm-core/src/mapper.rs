@@ -906,17 +906,48 @@ impl Update {
     /// `bits`, without a data-dependent branch: every lane is computed and the set ones kept,
     /// which a host compiles to a few vector instructions per word instead of a loop over its
     /// bits. In `i16` with a saturating add, which equals the `i32` sum clamped, since the
-    /// bounds lie inside the `i16` range.
+    /// bounds lie inside the `i16` range. Each byte of `bits` selects its eight lanes through
+    /// [`LANE_MASKS`] (a load per eight lanes instead of testing each bit), and `count`'s lanes
+    /// each gain the number of set bits among the lanes they sit in (≤ 4 per word).
     #[inline(always)]
-    fn free_lanes(&self, cells: &mut [LogOdds; 32], bits: u32) {
+    fn free_lanes(&self, cells: &mut [LogOdds; 32], bits: u32, count: &mut [u16; 8]) {
         // All three came from `i16` values.
         let (d, lo, hi) = (self.free as i16, self.min as i16, self.max as i16);
-        for (b, cell) in cells.iter_mut().enumerate() {
-            let v = cell.0.saturating_add(d).max(lo).min(hi);
-            cell.0 = if bits & (1 << b) != 0 { v } else { cell.0 };
+        for (j, eight) in cells.chunks_exact_mut(8).enumerate() {
+            // `& 0xff` < 256: always found, the check folds away.
+            let masks = LANE_MASKS
+                .get(((bits >> (8 * j)) & 0xff) as usize)
+                .copied()
+                .unwrap_or_default();
+            for ((cell, m), n) in eight.iter_mut().zip(masks).zip(count.iter_mut()) {
+                let v = cell.0.saturating_add(d).max(lo).min(hi);
+                // m is 0 or −1: keeps the cell, or takes v.
+                cell.0 ^= (cell.0 ^ v) & m;
+                *n = n.wrapping_sub(m as u16);
+            }
         }
     }
 }
+
+/// For each value of a byte, its eight bits as `i16` lane masks (−1 where the bit is set):
+/// [`Update::free_lanes`]'s selection, 4 KiB, used on 64-bit hosts only.
+// Indexing in a constant: out of bounds would fail the build, not panic at run time.
+#[allow(clippy::indexing_slicing)]
+const LANE_MASKS: [[i16; 8]; 256] = {
+    let mut t = [[0i16; 8]; 256];
+    let mut v = 0;
+    while v < 256 {
+        let mut b = 0;
+        while b < 8 {
+            if (v >> b) & 1 != 0 {
+                t[v][b] = -1;
+            }
+            b += 1;
+        }
+        v += 1;
+    }
+    t
+};
 
 /// The cells a scan's rays can have marked: the bounding box, clipped to the grid, of the end
 /// cells of the rays that cross the grid (a ray's cells lie between its end cells).
@@ -1222,6 +1253,9 @@ fn free_words<L: UpdateListener>(
     update: Update,
     listener: &mut L,
 ) -> u32 {
+    if LANE_SWEEP && L::REPORTS == Reports::Nothing {
+        return free_words_lanes(marks, first, last, cells, update);
+    }
     let mut freed = 0u32;
     let Some(words) = marks.get_mut(first..=last) else {
         return 0;
@@ -1245,11 +1279,6 @@ fn free_words<L: UpdateListener>(
             .get_mut(base..base + 32)
             .and_then(|c| <&mut [LogOdds; 32]>::try_from(c).ok());
         let fresh = match lanes {
-            Some(lanes) if LANE_SWEEP && L::REPORTS == Reports::Nothing => {
-                update.free_lanes(lanes, bits);
-                freed += bits.count_ones();
-                continue;
-            }
             Some(lanes) => free_bits(bits, base, update, listener, &mut freed, lanes),
             None => {
                 let tail = cells.get_mut(base..).unwrap_or(&mut []);
@@ -1261,6 +1290,81 @@ fn free_words<L: UpdateListener>(
         }
     }
     freed
+}
+
+/// [`free_words`] lane-wise, for a host when nobody hears about each cell: empty words are
+/// skipped four at a time (most of a scan's box is empty), each whole word's cells are freed by
+/// [`Update::free_lanes`], and the count is kept in vector lanes, summed per block of
+/// [`LANE_BLOCK`] words (a row of the box is one block, for any grid under 2^16 cells wide).
+#[inline(always)]
+fn free_words_lanes(
+    marks: &mut [u32],
+    first: usize,
+    last: usize,
+    cells: &mut [LogOdds],
+    update: Update,
+) -> u32 {
+    let Some(words) = marks.get_mut(first..=last) else {
+        return 0;
+    };
+    let (mut freed, mut first, mut rest) = (0u32, first, words);
+    loop {
+        let (block, more) = rest.split_at_mut(rest.len().min(LANE_BLOCK));
+        let mut count = [0u16; 8];
+        let done = block.len() / 4 * 4;
+        let mut quads = block.chunks_exact_mut(4);
+        for (q, quad) in quads.by_ref().enumerate() {
+            if quad.iter().fold(0, |a, w| a | w) == 0 {
+                continue;
+            }
+            for (j, word) in quad.iter_mut().enumerate() {
+                if *word != 0 {
+                    let base = (first + 4 * q + j) * 32;
+                    free_word_lanes(word, base, cells, update, &mut count, &mut freed);
+                }
+            }
+        }
+        for (j, word) in quads.into_remainder().iter_mut().enumerate() {
+            if *word != 0 {
+                let base = (first + done + j) * 32;
+                free_word_lanes(word, base, cells, update, &mut count, &mut freed);
+            }
+        }
+        freed += count.iter().map(|&n| u32::from(n)).sum::<u32>();
+        if more.is_empty() {
+            return freed;
+        }
+        (first, rest) = (first + LANE_BLOCK, more);
+    }
+}
+
+/// [`free_words_lanes`]' block: a `u16` lane of its count gains at most 4 per word, so at most
+/// 2^14 per block, no overflow.
+const LANE_BLOCK: usize = 1 << 12;
+
+/// One nonzero word of [`free_words_lanes`], `base` being the index of its bit 0 (`base + 31 <
+/// 2^32 · 32`: the words of in-grid cells): lane-wise if all its 32 cells exist, else (the
+/// grid's last word) bit by bit, counted in `freed`.
+#[inline(always)]
+fn free_word_lanes(
+    word: &mut u32,
+    base: usize,
+    cells: &mut [LogOdds],
+    update: Update,
+    count: &mut [u16; 8],
+    freed: &mut u32,
+) {
+    let bits = core::mem::take(word);
+    match cells
+        .get_mut(base..base + 32)
+        .and_then(|c| <&mut [LogOdds; 32]>::try_from(c).ok())
+    {
+        Some(lanes) => update.free_lanes(lanes, bits, count),
+        None => {
+            let tail = cells.get_mut(base..).unwrap_or(&mut []);
+            free_bits(bits, base, update, &mut (), freed, tail);
+        }
+    }
 }
 
 /// The cells of one mark word, from its bit 0 on: a whole word's 32 (no bounds check per cell)
@@ -1855,6 +1959,60 @@ mod tests {
             };
             prop_assert_eq!(run(true), run(false));
         }
+
+        /// The lane-wise sweep (mask table, empty words skipped four at a time, count kept in
+        /// lanes) frees exactly the cells the bit-by-bit sweep frees, from any cell values
+        /// (outside the clamp too), on any range of words including the grid's last, shorter
+        /// one, and clears the same words.
+        #[test]
+        fn lane_sweep_matches_bit_sweep(cells in prop::collection::vec(any::<i16>(), 1..700),
+                                        marks in prop::collection::vec(
+                                            prop_oneof![Just(0u32), any::<u32>(), Just(u32::MAX)], 22),
+                                        first in 0usize..22, len in 0usize..22,
+                                        free in -3000i32..0, lo in -32768i32..0, hi in 1i32..32768) {
+            let update = Update { occ: 1, free, min: lo, max: hi };
+            let cells: Vec<LogOdds> = cells.into_iter().map(LogOdds).collect();
+            // Marks only over the cells that exist, as marking leaves them.
+            let mut marks = marks;
+            marks.truncate(marks_len(cells.len()));
+            if let Some(tail) = marks.last_mut().filter(|_| cells.len() % 32 != 0) {
+                *tail &= (1u32 << (cells.len() % 32)) - 1;
+            }
+            let last = (first + len).min(marks.len().saturating_sub(1));
+            let (mut lane_cells, mut lane_marks) = (cells.clone(), marks.clone());
+            let lanes = free_words_lanes(&mut lane_marks, first, last, &mut lane_cells, update);
+            struct Every;
+            impl UpdateListener for Every {
+                const REPORTS: Reports = Reports::Every;
+                fn changed(&mut self, _: usize, _: LogOdds, _: LogOdds) {}
+                fn marked_words(&mut self, _: usize, _: &[u32]) {}
+                fn fresh_word(&mut self, _: usize, _: u32, _: LogOdds) {}
+            }
+            let (mut bit_cells, mut bit_marks) = (cells, marks);
+            let bits = free_words(&mut bit_marks, first, last, &mut bit_cells, update, &mut Every);
+            prop_assert_eq!(lanes, bits);
+            prop_assert_eq!(lane_cells, bit_cells);
+            prop_assert_eq!(lane_marks, bit_marks);
+        }
+    }
+
+    /// A row of marks longer than a [`LANE_BLOCK`], all set, is counted and freed in full:
+    /// without the blocks, a `u16` lane's count (4 per word) would wrap at 2^14 words.
+    #[test]
+    fn lane_sweep_counts_past_a_block() {
+        let words = 5 * LANE_BLOCK + 3;
+        let mut cells = vec![LogOdds(7); words * 32];
+        let mut marks = vec![u32::MAX; words];
+        let update = Update {
+            occ: 1,
+            free: -5,
+            min: -100,
+            max: 100,
+        };
+        let freed = free_words_lanes(&mut marks, 0, words - 1, &mut cells, update);
+        assert_eq!(freed as usize, words * 32);
+        assert!(cells.iter().all(|c| *c == LogOdds(2)));
+        assert!(marks.iter().all(|&w| w == 0));
     }
 
     /// The scan box: the pose's cell and the used beams' end cells (no-returns and ranges past
