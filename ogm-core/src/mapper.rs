@@ -314,16 +314,23 @@ struct PointToCell {
     geometry: GridGeometry,
     origin: (i64, i64),
     cell_mm: i32,
+    /// On a 64-bit host, division by the cell size as a multiply ([`FloorDiv`]); a 32-bit
+    /// core divides in one instruction and keeps this struct as small as before.
+    #[cfg(target_pointer_width = "64")]
+    by_cell: Option<FloorDiv>,
 }
 
 impl PointToCell {
     fn new(geometry: &GridGeometry) -> Self {
         let (ox, oy) = geometry.origin_mm();
+        // 0 (never: a geometry's cell size is ≥ 1) or > i32::MAX selects the slow path.
+        let cell_mm = i32::try_from(geometry.cell_mm()).unwrap_or(0);
         PointToCell {
             geometry: *geometry,
             origin: (i64::from(ox), i64::from(oy)),
-            // 0 (never: a geometry's cell size is ≥ 1) or > i32::MAX selects the slow path.
-            cell_mm: i32::try_from(geometry.cell_mm()).unwrap_or(0),
+            cell_mm,
+            #[cfg(target_pointer_width = "64")]
+            by_cell: FloorDiv::new(cell_mm),
         }
     }
 
@@ -343,10 +350,55 @@ impl PointToCell {
     /// not fit an `i32` (then only [`PointToCell::cell`]'s fallback can say).
     #[inline]
     fn cell_from_origin(&self, dx: i32, dy: i32) -> Option<CellCoord> {
+        #[cfg(target_pointer_width = "64")]
+        if let Some(d) = self.by_cell {
+            return Some(CellCoord {
+                x: d.floor(dx),
+                y: d.floor(dy),
+            });
+        }
         Some(CellCoord {
             x: dx.checked_div_euclid(self.cell_mm)?,
             y: dy.checked_div_euclid(self.cell_mm)?,
         })
+    }
+}
+
+/// `⌊n / d⌋` for any `i32` `n` and a fixed `d ≥ 1` as a multiply and a shift: a host's 32-bit
+/// division takes several times longer, twice per beam ([`PointToCell::cell_from_origin`]); a
+/// Cortex-M4's takes one instruction, so only hosts use this.
+///
+/// With `ℓ = ⌈log2 d⌉`, `k = 31 + ℓ` and `m = ⌈2^k / d⌉ ≤ 2^32`, `⌊u·m / 2^k⌋ = ⌊u / d⌋` for every
+/// `u < 2^31` (`m·d − 2^k < d ≤ 2^ℓ`, so the error `u·(m·d − 2^k)/(d·2^k)` is below `1/d`), and
+/// `u·m < 2^63`. A negative `n` is divided as `!n = −n − 1 ≥ 0`: `⌊n/d⌋ = !⌊!n / d⌋`.
+#[cfg(any(test, target_pointer_width = "64"))]
+#[derive(Clone, Copy, Debug)]
+struct FloorDiv {
+    m: u64,
+    k: u32,
+}
+
+#[cfg(any(test, target_pointer_width = "64"))]
+impl FloorDiv {
+    /// The division by `d`, if `d ≥ 1`.
+    fn new(d: i32) -> Option<FloorDiv> {
+        let d = u32::try_from(d).ok().filter(|&d| d >= 1)?;
+        // ⌈log2 d⌉ ≤ 31.
+        let l = 32 - (d - 1).leading_zeros();
+        let k = 31 + l;
+        Some(FloorDiv {
+            m: (1u64 << k).div_ceil(u64::from(d)),
+            k,
+        })
+    }
+
+    #[inline(always)]
+    fn floor(self, n: i32) -> i32 {
+        // 0 for n ≥ 0, −1 (all ones) for n < 0; u = n or !n, < 2^31.
+        let s = n >> 31;
+        let u = u64::from((n ^ s) as u32);
+        // u < 2^31 and m ≤ 2^32: no overflow; the quotient is < 2^31.
+        ((u * self.m) >> self.k) as i32 ^ s
     }
 }
 
@@ -1960,6 +2012,12 @@ mod tests {
             prop_assert_eq!(run(true), run(false));
         }
 
+        /// [`FloorDiv`] equals `div_euclid` for any `i32` and any divisor ≥ 1.
+        #[test]
+        fn floor_div_matches_any(n in any::<i32>(), d in prop_oneof![1i32..200, 1i32..=i32::MAX]) {
+            prop_assert_eq!(FloorDiv::new(d).unwrap().floor(n), n.div_euclid(d));
+        }
+
         /// The lane-wise sweep (mask table, empty words skipped four at a time, count kept in
         /// lanes) frees exactly the cells the bit-by-bit sweep frees, from any cell values
         /// (outside the clamp too), on any range of words including the grid's last, shorter
@@ -1994,6 +2052,47 @@ mod tests {
             prop_assert_eq!(lane_cells, bit_cells);
             prop_assert_eq!(lane_marks, bit_marks);
         }
+    }
+
+    /// The multiply-and-shift division equals `div_euclid` (floor, for a positive divisor) at
+    /// the extremes of `n` and of `d`, and on a spread of values between.
+    #[test]
+    fn floor_div_matches_div_euclid() {
+        let ds = [
+            1,
+            2,
+            3,
+            5,
+            7,
+            10,
+            50,
+            64,
+            100,
+            127,
+            1000,
+            65_537,
+            1 << 30,
+            i32::MAX - 1,
+            i32::MAX,
+        ];
+        let mut ns = vec![i32::MIN, i32::MIN + 1, -1, 0, 1, i32::MAX - 1, i32::MAX];
+        let mut x = 0x9E37_79B9u32;
+        for _ in 0..20_000 {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            ns.push(x as i32);
+            ns.push((x as i32) >> (x % 31));
+        }
+        for d in ds {
+            let f = FloorDiv::new(d).unwrap();
+            for &n in &ns {
+                for n in [n, n.wrapping_add(d), n.wrapping_sub(d), n.wrapping_sub(1)] {
+                    assert_eq!(f.floor(n), n.div_euclid(d), "{n} / {d}");
+                }
+            }
+        }
+        assert!(FloorDiv::new(0).is_none() && FloorDiv::new(-5).is_none());
     }
 
     /// A row of marks longer than a [`LANE_BLOCK`], all set, is counted and freed in full:
