@@ -1032,7 +1032,21 @@ where
                 if x as usize >= w {
                     break;
                 }
+                if word == 0 {
+                    x += 32;
+                    continue;
+                }
                 let (mut bits, mut tx) = (word, self.tile_col(x));
+                // Most words lie in tiles this tile row has marked already (a tile row is 16
+                // or so grid rows, each passed in its own call): skip those whole.
+                let hi = self.tile_col(x.saturating_add(31));
+                if hi < 32 {
+                    // Bits tx ..= hi (tx ≤ hi < 32).
+                    let span = (u32::MAX >> (31 - hi)) & (u32::MAX << tx);
+                    if cols & span == span {
+                        bits = 0;
+                    }
+                }
                 while bits != 0 {
                     // Tile tx's bits: those below the column where tile tx + 1 starts, which
                     // lies past x (the last tile column takes the rest of the row).
