@@ -951,7 +951,10 @@ impl Update {
     /// `i32`; `min < max`, so the result lies in `[min, max]` ⊂ `i16`).
     #[inline(always)]
     fn apply(&self, value: LogOdds, delta: i32) -> LogOdds {
-        LogOdds((i32::from(value.0) + delta).max(self.min).min(self.max) as i16)
+        // The bounds came from `i16`s: saying so lets the compiler see that the result fits
+        // one (no sign extension before a notable test).
+        let (lo, hi) = (i32::from(self.min as i16), i32::from(self.max as i16));
+        LogOdds((i32::from(value.0) + delta).max(lo).min(hi) as i16)
     }
 
     /// [`Update::apply`] of the free increment to each of the 32 cells whose bit is set in
