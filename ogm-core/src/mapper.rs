@@ -1241,9 +1241,17 @@ fn insert_beam_model<L: UpdateListener>(
         }
     }
     // Pass 3: free what is left, clearing the marks.
-    box_words(&area, width, height, |first, last| {
-        stats.cells_freed += free_words(marks, first, last, cells, update, listener);
-    });
+    if LANE_SWEEP && L::REPORTS == Reports::Nothing {
+        let mut count = LaneCount::default();
+        box_words(&area, width, height, |first, last| {
+            free_words_lanes(marks, first, last, cells, update, &mut count);
+        });
+        stats.cells_freed += count.total();
+    } else {
+        box_words(&area, width, height, |first, last| {
+            stats.cells_freed += free_words(marks, first, last, cells, update, listener);
+        });
+    }
     stats
 }
 
@@ -1308,9 +1316,6 @@ fn free_words<L: UpdateListener>(
     update: Update,
     listener: &mut L,
 ) -> u32 {
-    if LANE_SWEEP && L::REPORTS == Reports::Nothing {
-        return free_words_lanes(marks, first, last, cells, update);
-    }
     let mut freed = 0u32;
     let Some(words) = marks.get_mut(first..=last) else {
         return 0;
@@ -1347,10 +1352,11 @@ fn free_words<L: UpdateListener>(
     freed
 }
 
-/// [`free_words`] lane-wise, for a host when nobody hears about each cell: empty words are
-/// skipped four at a time (most of a scan's box is empty), each whole word's cells are freed by
-/// [`Update::free_lanes`], and the count is kept in vector lanes, summed per block of
-/// [`LANE_BLOCK`] words (a row of the box is one block, for any grid under 2^16 cells wide).
+/// [`free_words`] lane-wise, for a host when nobody hears about each cell (see
+/// [`LANE_SWEEP`]): empty words are skipped four at a time (most of a scan's box is empty),
+/// each whole word's cells are freed by [`Update::free_lanes`], and the count is kept in
+/// `count`'s vector lanes across the scan's rows. A range longer than [`LANE_BLOCK`] words (never
+/// a row of the box: a grid is under 2^16 cells wide) takes the bit-by-bit sweep instead.
 #[inline(always)]
 fn free_words_lanes(
     marks: &mut [u32],
@@ -1358,66 +1364,106 @@ fn free_words_lanes(
     last: usize,
     cells: &mut [LogOdds],
     update: Update,
-) -> u32 {
+    count: &mut LaneCount,
+) {
     let Some(words) = marks.get_mut(first..=last) else {
-        return 0;
+        return;
     };
-    let (mut freed, mut first, mut rest) = (0u32, first, words);
-    loop {
-        let (block, more) = rest.split_at_mut(rest.len().min(LANE_BLOCK));
-        let mut count = [0u16; 8];
-        let done = block.len() / 4 * 4;
-        let mut quads = block.chunks_exact_mut(4);
-        for (q, quad) in quads.by_ref().enumerate() {
-            if quad.iter().fold(0, |a, w| a | w) == 0 {
-                continue;
-            }
-            for (j, word) in quad.iter_mut().enumerate() {
-                if *word != 0 {
-                    let base = (first + 4 * q + j) * 32;
-                    free_word_lanes(word, base, cells, update, &mut count, &mut freed);
-                }
-            }
+    if words.len() > LANE_BLOCK {
+        count.total = count
+            .total
+            .saturating_add(free_words(marks, first, last, cells, update, &mut Bits));
+        return;
+    }
+    count.make_room(words.len());
+    let done = words.len() / 4 * 4;
+    let mut quads = words.chunks_exact_mut(4);
+    for (q, quad) in quads.by_ref().enumerate() {
+        if quad.iter().fold(0, |a, w| a | w) == 0 {
+            continue;
         }
-        for (j, word) in quads.into_remainder().iter_mut().enumerate() {
+        for (j, word) in quad.iter_mut().enumerate() {
             if *word != 0 {
-                let base = (first + done + j) * 32;
-                free_word_lanes(word, base, cells, update, &mut count, &mut freed);
+                free_word_lanes(word, (first + 4 * q + j) * 32, cells, update, count);
             }
         }
-        freed += count.iter().map(|&n| u32::from(n)).sum::<u32>();
-        if more.is_empty() {
-            return freed;
+    }
+    for (j, word) in quads.into_remainder().iter_mut().enumerate() {
+        if *word != 0 {
+            free_word_lanes(word, (first + done + j) * 32, cells, update, count);
         }
-        (first, rest) = (first + LANE_BLOCK, more);
     }
 }
 
-/// [`free_words_lanes`]' block: a `u16` lane of its count gains at most 4 per word, so at most
-/// 2^14 per block, no overflow.
+/// A [`Reports::Every`] listener that hears nothing: [`free_words`] bit by bit, for what the
+/// lane-wise sweep does not take.
+struct Bits;
+
+impl UpdateListener for Bits {
+    const REPORTS: Reports = Reports::Every;
+    #[inline(always)]
+    fn changed(&mut self, _: usize, _: LogOdds, _: LogOdds) {}
+    fn marked_words(&mut self, _: usize, _: &[u32]) {}
+    fn fresh_word(&mut self, _: usize, _: u32, _: LogOdds) {}
+}
+
+/// The lane-wise sweep's count of freed cells over a scan: eight `u16` lanes, each gaining at
+/// most 4 per word, summed into `total` before [`LANE_BLOCK`] words have gone into them (so
+/// at most 2^14 per lane, no wrap).
+#[derive(Default)]
+struct LaneCount {
+    lanes: [u16; 8],
+    /// Words counted into `lanes` since they were last summed.
+    pending: usize,
+    total: u32,
+}
+
+impl LaneCount {
+    /// Makes room in the lanes for `words` more words (≤ [`LANE_BLOCK`]).
+    #[inline(always)]
+    fn make_room(&mut self, words: usize) {
+        if self.pending + words > LANE_BLOCK {
+            self.flush();
+        }
+        self.pending += words;
+    }
+
+    fn flush(&mut self) {
+        let sum: u32 = self.lanes.iter().map(|&n| u32::from(n)).sum();
+        self.total = self.total.saturating_add(sum);
+        (self.lanes, self.pending) = ([0; 8], 0);
+    }
+
+    /// All the cells counted.
+    fn total(mut self) -> u32 {
+        self.flush();
+        self.total
+    }
+}
+
+/// [`LaneCount`]'s block: a `u16` lane gains at most 4 per word, so at most 2^14 per block.
 const LANE_BLOCK: usize = 1 << 12;
 
 /// One nonzero word of [`free_words_lanes`], `base` being the index of its bit 0 (`base + 31 <
 /// 2^32 · 32`: the words of in-grid cells): lane-wise if all its 32 cells exist, else (the
-/// grid's last word) bit by bit, counted in `freed`.
+/// grid's last word) bit by bit, counted in `count.total`.
 #[inline(always)]
 fn free_word_lanes(
     word: &mut u32,
     base: usize,
     cells: &mut [LogOdds],
     update: Update,
-    count: &mut [u16; 8],
-    freed: &mut u32,
+    count: &mut LaneCount,
 ) {
     let bits = core::mem::take(word);
     match cells
         .get_mut(base..base + 32)
         .and_then(|c| <&mut [LogOdds; 32]>::try_from(c).ok())
     {
-        Some(lanes) => update.free_lanes(lanes, bits, count),
+        Some(lanes) => update.free_lanes(lanes, bits, &mut count.lanes),
         None => {
             let tail = cells.get_mut(base..).unwrap_or(&mut []);
-            free_bits(bits, base, update, &mut (), freed, tail);
+            free_bits(bits, base, update, &mut (), &mut count.total, tail);
         }
     }
 }
@@ -2041,16 +2087,11 @@ mod tests {
             }
             let last = (first + len).min(marks.len().saturating_sub(1));
             let (mut lane_cells, mut lane_marks) = (cells.clone(), marks.clone());
-            let lanes = free_words_lanes(&mut lane_marks, first, last, &mut lane_cells, update);
-            struct Every;
-            impl UpdateListener for Every {
-                const REPORTS: Reports = Reports::Every;
-                fn changed(&mut self, _: usize, _: LogOdds, _: LogOdds) {}
-                fn marked_words(&mut self, _: usize, _: &[u32]) {}
-                fn fresh_word(&mut self, _: usize, _: u32, _: LogOdds) {}
-            }
+            let mut count = LaneCount::default();
+            free_words_lanes(&mut lane_marks, first, last, &mut lane_cells, update, &mut count);
+            let lanes = count.total();
             let (mut bit_cells, mut bit_marks) = (cells, marks);
-            let bits = free_words(&mut bit_marks, first, last, &mut bit_cells, update, &mut Every);
+            let bits = free_words(&mut bit_marks, first, last, &mut bit_cells, update, &mut Bits);
             prop_assert_eq!(lanes, bits);
             prop_assert_eq!(lane_cells, bit_cells);
             prop_assert_eq!(lane_marks, bit_marks);
@@ -2098,21 +2139,40 @@ mod tests {
         assert!(FloorDiv::new(0).is_none() && FloorDiv::new(-5).is_none());
     }
 
-    /// A row of marks longer than a [`LANE_BLOCK`], all set, is counted and freed in full:
-    /// without the blocks, a `u16` lane's count (4 per word) would wrap at 2^14 words.
+    /// The lane-wise count over many rows, all set, is the number of their cells: without the
+    /// flushes, a `u16` lane's count (4 per word) would wrap after 2^14 words. A range longer
+    /// than a block (the bit-by-bit fallback) is freed and counted in full too.
     #[test]
     fn lane_sweep_counts_past_a_block() {
-        let words = 5 * LANE_BLOCK + 3;
-        let mut cells = vec![LogOdds(7); words * 32];
-        let mut marks = vec![u32::MAX; words];
+        let (row, rows) = (2_000, 11);
         let update = Update {
             occ: 1,
             free: -5,
             min: -100,
             max: 100,
         };
-        let freed = free_words_lanes(&mut marks, 0, words - 1, &mut cells, update);
-        assert_eq!(freed as usize, words * 32);
+        let mut cells = vec![LogOdds(7); row * rows * 32];
+        let mut marks = vec![u32::MAX; row * rows];
+        let mut count = LaneCount::default();
+        for r in 0..rows {
+            free_words_lanes(
+                &mut marks,
+                r * row,
+                r * row + row - 1,
+                &mut cells,
+                update,
+                &mut count,
+            );
+        }
+        assert_eq!(count.total() as usize, row * rows * 32);
+        assert!(cells.iter().all(|c| *c == LogOdds(2)));
+        assert!(marks.iter().all(|&w| w == 0));
+        let words = LANE_BLOCK + 3;
+        let mut cells = vec![LogOdds(7); words * 32];
+        let mut marks = vec![u32::MAX; words];
+        let mut count = LaneCount::default();
+        free_words_lanes(&mut marks, 0, words - 1, &mut cells, update, &mut count);
+        assert_eq!(count.total() as usize, words * 32);
         assert!(cells.iter().all(|c| *c == LogOdds(2)));
         assert!(marks.iter().all(|&w| w == 0));
     }
