@@ -1037,8 +1037,8 @@ where
                     continue;
                 }
                 let (mut bits, mut tx) = (word, self.tile_col(x));
-                // Most words lie in tiles this tile row has marked already (a tile row is 16
-                // or so grid rows, each passed in its own call): skip those whole.
+                // Most words lie in tiles this tile row has marked already (a tile row spans
+                // 2^tile_shift grid rows, each passed in its own call): skip those whole.
                 let hi = self.tile_col(x.saturating_add(31));
                 if hi < 32 {
                     // Bits tx ..= hi (tx ≤ hi < 32).
