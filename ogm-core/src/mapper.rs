@@ -962,8 +962,8 @@ impl Update {
     /// which a host compiles to a few vector instructions per word instead of a loop over its
     /// bits. In `i16` with a saturating add, which equals the `i32` sum clamped, since the
     /// bounds lie inside the `i16` range. Each byte of `bits` selects its eight lanes through
-    /// [`LANE_MASKS`] (a load per eight lanes instead of testing each bit), and `count`'s lanes
-    /// each gain the number of set bits among the lanes they sit in (≤ 4 per word).
+    /// [`LANE_MASKS`] (a load per eight lanes instead of testing each bit), and lane `i` of
+    /// `count` gains the number of bits `i`, `i + 8`, `i + 16`, `i + 24` set (≤ 4 per word).
     #[inline(always)]
     fn free_lanes(&self, cells: &mut [LogOdds; 32], bits: u32, count: &mut [u16; 8]) {
         // All three came from `i16` values.
@@ -1305,7 +1305,8 @@ const LANE_SWEEP: bool = cfg!(target_pointer_width = "64");
 /// Frees the cells whose bits are set in `marks[first..=last]`, in increasing index order, and
 /// clears those words; returns how many cells it freed, and tells `listener` (see [`Reports`]).
 // Out of line on a 32-bit core, whose registers then hold the sweep's state instead of the
-// whole insertion's; inlined on a 64-bit host (its lane-wise sweep does better inlined).
+// whole insertion's; inlined on a 64-bit host, where it serves only listeners that hear about
+// cells (the lane-wise sweep is `free_words_lanes`).
 #[cfg_attr(target_pointer_width = "32", inline(never))]
 #[cfg_attr(not(target_pointer_width = "32"), inline(always))]
 fn free_words<L: UpdateListener>(
@@ -1329,7 +1330,7 @@ fn free_words<L: UpdateListener>(
         let base = (first + k) * 32;
         // Marked cells are in the grid (marking sets no bit past its end), so all are freed:
         // counted per word on a 32-bit core (one register fewer in its loop), per cell on a
-        // 64-bit host (which has no cheaper count without `popcnt`) unless lane-wise.
+        // 64-bit host (which has no cheaper count without `popcnt`).
         if !LANE_SWEEP {
             freed += bits.count_ones();
         }
@@ -1370,9 +1371,10 @@ fn free_words_lanes(
         return;
     };
     if words.len() > LANE_BLOCK {
-        count.total = count
-            .total
-            .saturating_add(free_words(marks, first, last, cells, update, &mut Bits));
+        count.total =
+            count
+                .total
+                .saturating_add(free_words(marks, first, last, cells, update, &mut ()));
         return;
     }
     count.make_room(words.len());
@@ -1395,21 +1397,9 @@ fn free_words_lanes(
     }
 }
 
-/// A [`Reports::Every`] listener that hears nothing: [`free_words`] bit by bit, for what the
-/// lane-wise sweep does not take.
-struct Bits;
-
-impl UpdateListener for Bits {
-    const REPORTS: Reports = Reports::Every;
-    #[inline(always)]
-    fn changed(&mut self, _: usize, _: LogOdds, _: LogOdds) {}
-    fn marked_words(&mut self, _: usize, _: &[u32]) {}
-    fn fresh_word(&mut self, _: usize, _: u32, _: LogOdds) {}
-}
-
 /// The lane-wise sweep's count of freed cells over a scan: eight `u16` lanes, each gaining at
-/// most 4 per word, summed into `total` before [`LANE_BLOCK`] words have gone into them (so
-/// at most 2^14 per lane, no wrap).
+/// most 4 per word, summed into `total` before more than [`LANE_BLOCK`] words have gone into
+/// them (so at most 2^14 per lane, no wrap).
 #[derive(Default)]
 struct LaneCount {
     lanes: [u16; 8],
@@ -2091,7 +2081,7 @@ mod tests {
             free_words_lanes(&mut lane_marks, first, last, &mut lane_cells, update, &mut count);
             let lanes = count.total();
             let (mut bit_cells, mut bit_marks) = (cells, marks);
-            let bits = free_words(&mut bit_marks, first, last, &mut bit_cells, update, &mut Bits);
+            let bits = free_words(&mut bit_marks, first, last, &mut bit_cells, update, &mut ());
             prop_assert_eq!(lanes, bits);
             prop_assert_eq!(lane_cells, bit_cells);
             prop_assert_eq!(lane_marks, bit_marks);

@@ -1038,7 +1038,8 @@ where
                 }
                 let (mut bits, mut tx) = (word, self.tile_col(x));
                 // Most words lie in tiles this tile row has marked already (a tile row spans
-                // 2^tile_shift grid rows, each passed in its own call): skip those whole.
+                // 2^tile_shift grid rows, more at the margins, and the mapper passes each grid
+                // row's words in a call of its own): skip those whole.
                 let hi = self.tile_col(x.saturating_add(31));
                 if hi < 32 {
                     // Bits tx ..= hi (tx ≤ hi < 32).
