@@ -1207,9 +1207,8 @@ pub fn encode<'b, T: Serialize + ?Sized>(
     let body = buf.get_mut(gap..).ok_or(WireError::BufferFull)?;
     let (version, rest) = body.split_first_mut().ok_or(WireError::BufferFull)?;
     *version = VERSION;
-    let n = 1 + postcard::to_slice(msg, rest)
-        .map_err(|_| WireError::BufferFull)?
-        .len();
+    let n = 1 + postcard::serialize_with_flavor(msg, Payload { buf: rest, len: 0 })
+        .map_err(|_| WireError::BufferFull)?;
     let crc = CRC32.checksum(body.get(..n).ok_or(WireError::BufferFull)?);
     body.get_mut(n..n + 4)
         .ok_or(WireError::BufferFull)?
@@ -1218,6 +1217,51 @@ pub fn encode<'b, T: Serialize + ?Sized>(
     let end = buf.get_mut(len).ok_or(WireError::BufferFull)?;
     *end = 0;
     buf.get_mut(..=len).ok_or(WireError::BufferFull)
+}
+
+/// postcard's output for [`encode`]: the payload's bytes written into a slice by two out-of-line
+/// functions, so that each field of each message costs a call instead of postcard's inlined
+/// slice bounds check and copy (which the firmware's one `encode` of every message multiplies).
+struct Payload<'a> {
+    buf: &'a mut [u8],
+    len: usize,
+}
+
+impl postcard::ser_flavors::Flavor for Payload<'_> {
+    /// The payload's length.
+    type Output = usize;
+
+    #[inline(never)]
+    fn try_push(&mut self, byte: u8) -> postcard::Result<()> {
+        let slot = self
+            .buf
+            .get_mut(self.len)
+            .ok_or(postcard::Error::SerializeBufferFull)?;
+        *slot = byte;
+        self.len += 1;
+        Ok(())
+    }
+
+    #[inline(never)]
+    fn try_extend(&mut self, bytes: &[u8]) -> postcard::Result<()> {
+        let end = self.len.saturating_add(bytes.len());
+        let out = self
+            .buf
+            .get_mut(self.len..end)
+            .ok_or(postcard::Error::SerializeBufferFull)?;
+        // Not `copy_from_slice`: its length check's panic would pull `core::fmt` into the
+        // firmware; the lengths are equal here (`end − len = bytes.len()`, never saturated since
+        // the range is inside `buf`).
+        for (o, b) in out.iter_mut().zip(bytes) {
+            *o = *b;
+        }
+        self.len = end;
+        Ok(())
+    }
+
+    fn finalize(self) -> postcard::Result<usize> {
+        Ok(self.len)
+    }
 }
 
 /// COBS-encodes `buf[src..src + len]` into `buf[0..]` (no terminator); returns the encoded
@@ -1488,6 +1532,38 @@ mod tests {
         }
         out[code_at] = code;
         out
+    }
+
+    /// `encode`'s own postcard output (`Payload`) equals postcard's slice flavour's, and every
+    /// buffer too short for the frame is `BufferFull`, never a panic or a cut frame.
+    #[test]
+    fn encode_writes_postcard_bytes_and_refuses_short_buffers() {
+        let msgs = [
+            HostMsg::Config(max_config()),
+            HostMsg::ScanEnd {
+                seq: u32::MAX,
+                points: 0,
+            },
+            HostMsg::Finish,
+        ];
+        for m in msgs {
+            let mut buf = [0u8; 256];
+            let frame = encode(&m, &mut buf).unwrap().to_vec();
+            let mut raw = vec![VERSION];
+            raw.extend_from_slice(postcard::to_slice(&m, &mut [0u8; 256]).unwrap());
+            let crc = CRC32.checksum(&raw);
+            raw.extend_from_slice(&crc.to_le_bytes());
+            let mut want = cobs_encode(&raw);
+            want.push(0);
+            assert_eq!(frame, want, "{m:?}");
+            for len in 0..frame.len() + frame.len() / 254 + 2 {
+                let mut short = vec![0u8; len];
+                match encode(&m, &mut short) {
+                    Ok(f) => assert_eq!(f, &frame[..], "{m:?} in {len} bytes"),
+                    Err(e) => assert_eq!(e, WireError::BufferFull, "{m:?} in {len} bytes"),
+                }
+            }
+        }
     }
 
     #[test]
