@@ -1534,6 +1534,18 @@ mod tests {
         out
     }
 
+    /// The frame of a postcard `payload` built step by step with the reference COBS encoder:
+    /// COBS(VERSION ‖ payload ‖ CRC-32) ‖ 0x00.
+    fn reference_frame(payload: &[u8]) -> Vec<u8> {
+        let mut raw = vec![VERSION];
+        raw.extend_from_slice(payload);
+        let crc = CRC32.checksum(&raw);
+        raw.extend_from_slice(&crc.to_le_bytes());
+        let mut frame = cobs_encode(&raw);
+        frame.push(0);
+        frame
+    }
+
     /// `encode`'s own postcard output (`Payload`) equals postcard's slice flavour's, and every
     /// buffer too short for the frame is `BufferFull`, never a panic or a cut frame.
     #[test]
@@ -1549,12 +1561,7 @@ mod tests {
         for m in msgs {
             let mut buf = [0u8; 256];
             let frame = encode(&m, &mut buf).unwrap().to_vec();
-            let mut raw = vec![VERSION];
-            raw.extend_from_slice(postcard::to_slice(&m, &mut [0u8; 256]).unwrap());
-            let crc = CRC32.checksum(&raw);
-            raw.extend_from_slice(&crc.to_le_bytes());
-            let mut want = cobs_encode(&raw);
-            want.push(0);
+            let want = reference_frame(postcard::to_slice(&m, &mut [0u8; 256]).unwrap());
             assert_eq!(frame, want, "{m:?}");
             for len in 0..frame.len() + frame.len() / 254 + 2 {
                 let mut short = vec![0u8; len];
@@ -1580,12 +1587,7 @@ mod tests {
             });
             let mut buf = [0u8; MAX_DEVICE_FRAME];
             let frame = encode(&msg, &mut buf).unwrap().to_vec();
-            let mut raw = vec![VERSION];
-            raw.extend_from_slice(postcard::to_slice(&msg, &mut [0u8; 600]).unwrap());
-            let crc = CRC32.checksum(&raw);
-            raw.extend_from_slice(&crc.to_le_bytes());
-            let mut want = cobs_encode(&raw);
-            want.push(0);
+            let want = reference_frame(postcard::to_slice(&msg, &mut [0u8; 600]).unwrap());
             assert_eq!(frame, want, "len {len}");
             let mut f = frame.clone();
             let back: DeviceMsg = decode(&mut f[..frame.len() - 1]).unwrap();
