@@ -18,16 +18,16 @@
 
 use crate::sizes::APP as SIZES;
 use embedded_io::{Read, ReadReady, Write};
-use ogm_core::ld06::Ld06Parser;
-use ogm_core::link::{LinkRx, Step};
+use ogm_core::config::{Budget, LidarModel, PoseInput, RunConfig};
+use ogm_core::lidar::ld06::Ld06Parser;
+use ogm_core::lidar::link::{LinkRx, Step};
 #[cfg(feature = "rplidar")]
-use ogm_core::rplidar::{self, RplidarParser};
+use ogm_core::lidar::rplidar::{self, RplidarParser};
+use ogm_core::lidar::turn::{Turn, Turns};
 use ogm_core::session::{Buffers, Session, Sizes, Storage};
-use ogm_core::turn::{Turn, Turns};
 use ogm_core::wire::{
-    self, Budget, ConfigFault, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello,
-    IdleReport, Layer, LidarCounters, LidarModel, LinkCounters, PoseInput, RunConfig, ScanRanges,
-    ScanReport, Tile, TileRect,
+    self, ConfigFault, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello, IdleReport, Layer,
+    LidarCounters, LinkCounters, ScanRanges, ScanReport, Tile, TileRect,
 };
 use ogm_core::{Pose, ScanBuf};
 
@@ -152,7 +152,7 @@ const fn built_for(model: &LidarModel) -> bool {
 
 /// What a lidar parser handed out.
 enum Unit {
-    Packet(ogm_core::ld06::Packet),
+    Packet(ogm_core::lidar::ld06::Packet),
     #[cfg(feature = "rplidar")]
     Node(rplidar::Node),
 }
@@ -679,7 +679,7 @@ impl<S: Storage> State<'_, S> {
         };
         let mut report = ScanReport {
             seq,
-            pose: (*pose).into(),
+            pose: *pose,
             beams: beams.len() as u32,
             beams_overflowed: overflow,
             t_us,
@@ -712,7 +712,7 @@ impl<S: Storage> State<'_, S> {
         }
         // The ray model changes nothing outside the box around the pose's cell and every
         // beam's end cell.
-        let (lo, hi) = ogm_core::mapper::scan_box(&geometry, &mapper_config, pose, beams);
+        let (lo, hi) = ogm_core::map::mapper::scan_box(&geometry, &mapper_config, pose, beams);
         mark_dirty(&mut self.dirty, (lo.x, lo.y), (hi.x, hi.y));
         self.counters.scans = self.counters.scans.saturating_add(1);
         let t = &mut self.totals;
@@ -1032,7 +1032,7 @@ where
     let mut heard = platform.now();
     // One LD06 packet at a time (a read completes at most one), so the turn queue's room is
     // checked before every packet.
-    let mut chunk = [0u8; ogm_core::ld06::PACKET_LEN];
+    let mut chunk = [0u8; ogm_core::lidar::ld06::PACKET_LEN];
     loop {
         if app.wants_lidar() && lidar.read_ready().unwrap_or(false) {
             match lidar.read(&mut chunk) {
@@ -1071,12 +1071,12 @@ where
 fn start_lidar<R: LidarPort, P: Platform>(lidar: &mut R, platform: &P, model: LidarModel) {
     lidar.set_baud(model.baud());
     if cfg!(feature = "rplidar") && matches!(model, LidarModel::Rplidar { .. }) {
-        let ok = write_all(lidar, &ogm_core::rplidar::REQ_STOP) && lidar.flush().is_ok();
+        let ok = write_all(lidar, &ogm_core::lidar::rplidar::REQ_STOP) && lidar.flush().is_ok();
         // ≥ 1 ms after STOP (2 ms: the byte may still be on the wire when `flush` returns).
         let t0 = platform.now();
         let wait = (2_000 * u64::from(P::TICK_HZ) / 1_000_000) as u32;
         while platform.now().wrapping_sub(t0) < wait {}
-        if !(ok && write_all(lidar, &ogm_core::rplidar::REQ_SCAN) && lidar.flush().is_ok()) {
+        if !(ok && write_all(lidar, &ogm_core::lidar::rplidar::REQ_SCAN) && lidar.flush().is_ok()) {
             error!("lidar: cannot send the RPLIDAR its requests");
         }
     }

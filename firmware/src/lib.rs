@@ -1,7 +1,7 @@
 //! The robot's application, board-independent and `no_std`: what every board's binary runs and
 //! what the host replays byte for byte to check it (`host-sim firmware`).
 //!
-//! * [`app`] — the link (LD06 packets + host frames, `ogm_core::link`), the mapping engine
+//! * [`app`] — the link (LD06 packets + host frames, `ogm_core::lidar::link`), the mapping engine
 //!   (`ogm_core::session::Session`) under a per-scan sampler budget, and the postcard map stream
 //!   (`ogm_core::wire`);
 //! * [`platform`] — what it needs from a board: a clock, the stack's high-water mark;

@@ -4,12 +4,12 @@
 //! docs/firmware.md ("RAM layout").
 
 use crate::board::{StaticArray, StaticBuf, StaticSlot};
-use ogm_core::gibbs::{block_words, LocalRay};
-use ogm_core::mapper::marks_len;
-use ogm_core::pose_track::Mount;
-use ogm_core::ray_store::{StoredRay, StoredScan};
+use ogm_core::lidar::pose_track::Mount;
+use ogm_core::lidar::turn::Turns;
+use ogm_core::map::mapper::marks_len;
+use ogm_core::sampler::gibbs::{block_words, LocalRay};
+use ogm_core::sampler::ray_store::{StoredRay, StoredScan};
 use ogm_core::session::{Buffers, Session, Storage};
-use ogm_core::turn::Turns;
 use ogm_core::wire::{MAX_DEVICE_FRAME, MAX_TILE_BYTES};
 use ogm_core::{LogOdds, ScanBuf};
 use ogm_firmware::sizes::BoardSizes;
@@ -59,7 +59,8 @@ static SCAN_BUF: StaticArray<StoredScan, { SCANS }> = StaticArray::new();
 /// The sampler's per-tile ray list: 24 B each.
 static LOCAL_BUF: StaticArray<LocalRay, { LOCAL_RAYS }> = StaticArray::new();
 /// Which local rays touch which block of a tile visit (8 × 8 blocks): one bit per (block, ray).
-pub const BLOCK_WORDS: usize = block_words(LOCAL_RAYS, ogm_core::gibbs::DEFAULT_BLOCK_GRID);
+pub const BLOCK_WORDS: usize =
+    block_words(LOCAL_RAYS, ogm_core::sampler::gibbs::DEFAULT_BLOCK_GRID);
 static BLOCKS: StaticBuf<[u32; BLOCK_WORDS]> = StaticBuf::new([0; BLOCK_WORDS]);
 /// The scan being received: 12 B per beam.
 static SCAN: StaticBuf<ScanBuf<{ SZ.max_beams }>> = StaticBuf::new(ScanBuf::new());

@@ -56,7 +56,7 @@ pub trait Platform {
 
 /// The range sensor's UART as the application uses it: bytes in, requests out (an RPLIDAR is
 /// commanded), and the baud rate the settings' lidar talks at
-/// ([`ogm_core::wire::LidarModel::baud`]).
+/// ([`ogm_core::config::LidarModel::baud`]).
 pub trait LidarPort: embedded_io::Read + embedded_io::ReadReady + embedded_io::Write {
     /// Switches the UART to `baud` (bytes received before it may be garbled: the parsers
     /// resynchronise).

@@ -11,9 +11,9 @@
 //! * inserts: the [`POSES`] in order; sampler: [`UPDATES_PER_SCAN`] patch updates per scan, seed 1.
 
 use embedded_io::Write;
+use ogm_core::config::{Budget, RunConfig};
+use ogm_core::lidar::turn::Turn;
 use ogm_core::session::Storage;
-use ogm_core::turn::Turn;
-use ogm_core::wire::{Budget, RunConfig};
 use ogm_core::{Angle, Beam, Pose, Range, ScanBuf};
 
 use crate::app::App;

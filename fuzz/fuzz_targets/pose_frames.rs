@@ -1,28 +1,27 @@
 //! Pose frames and scans end to end, as the robot sees them: an input-chosen sequence of host
 //! frames (`Config` with any field values, `ScanStart` with any pose — far outside the map
 //! included —, `ScanEnd`, `Finish`), LD06 packets (any distance, zero = no return, more than a
-//! scan buffer holds), raw bytes and flipped bits, through `ogm_core::link::LinkRx` into the
+//! scan buffer holds), raw bytes and flipped bits, through `ogm_core::lidar::link::LinkRx` into the
 //! firmware's engine, `ogm_core::session::Session`: `insert` (mapper, seeding, ray store, cache
 //! refresh), sampler steps, and the tile-box computation of the firmware's `mark_dirty`
 //! (`Pose::beam_end` → `GridGeometry::cell_of_point`). A 64 × 64 grid and small buffers keep
 //! an input fast. Invariants: nothing panics; log-odds stay within the clamp; the sampler's
 //! counts never exceed its samples. The same bytes also go through the robot loop's lidar
-//! path (`ogm_core::ld06::Ld06Parser` → `ogm_core::turn::Turns`, placed by the `Pose` frames
+//! path (`ogm_core::lidar::ld06::Ld06Parser` → `ogm_core::lidar::turn::Turns`, placed by the `Pose` frames
 //! among them, with any mounting) into the engine.
 #![no_main]
 
 use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
-use ogm_core::gibbs::{DataTerm, Estimator};
-use ogm_core::ld06::Ld06Parser;
-use ogm_core::ld06::{Packet, Point, POINTS};
-use ogm_core::link::{LinkRx, Step};
-use ogm_core::pose_track::Mount;
+use ogm_core::config::{Budget, LidarModel, PoseInput, RunConfig};
+use ogm_core::config::{DataTerm, Estimator};
+use ogm_core::lidar::ld06::Ld06Parser;
+use ogm_core::lidar::ld06::{Packet, Point, POINTS};
+use ogm_core::lidar::link::{LinkRx, Step};
+use ogm_core::lidar::pose_track::Mount;
+use ogm_core::lidar::turn::{Turn, Turns};
 use ogm_core::session::{Owned, Session, Sizes};
-use ogm_core::turn::{Turn, Turns};
-use ogm_core::wire::{
-    self, Budget, HostMsg, LidarModel, PoseInput, RunConfig, WirePose, MAX_HOST_FRAME,
-};
+use ogm_core::wire::{self, HostMsg, MAX_HOST_FRAME};
 use ogm_core::ScanBuf;
 
 const W: u16 = 64;
@@ -209,10 +208,10 @@ fuzz_target!(|items: Vec<Item>| {
                         }
                     },
                     hot_share,
-                    mount: WirePose {
+                    mount: ogm_core::Pose {
                         x_mm: mount_x_mm,
                         y_mm: mount_y_mm,
-                        heading: mount_yaw,
+                        heading: ogm_core::Angle(mount_yaw),
                     },
                     poses: if fixed_poses {
                         PoseInput::Fixed
@@ -251,10 +250,10 @@ fuzz_target!(|items: Vec<Item>| {
                 &mut bytes,
                 &HostMsg::ScanStart {
                     seq: u32::from(seq),
-                    pose: WirePose {
+                    pose: ogm_core::Pose {
                         x_mm,
                         y_mm,
-                        heading,
+                        heading: ogm_core::Angle(heading),
                     },
                 },
             ),
@@ -267,10 +266,10 @@ fuzz_target!(|items: Vec<Item>| {
                 &mut bytes,
                 &HostMsg::ScanStart {
                     seq: u32::from(seq),
-                    pose: WirePose {
+                    pose: ogm_core::Pose {
                         x_mm: i32::from(x_mm) / 8 + 1600,
                         y_mm: i32::from(y_mm) / 8 + 1600,
-                        heading,
+                        heading: ogm_core::Angle(heading),
                     },
                 },
             ),
@@ -291,10 +290,10 @@ fuzz_target!(|items: Vec<Item>| {
                 &mut bytes,
                 &HostMsg::Pose {
                     t_us,
-                    pose: WirePose {
+                    pose: ogm_core::Pose {
                         x_mm,
                         y_mm,
-                        heading,
+                        heading: ogm_core::Angle(heading),
                     },
                 },
             ),
@@ -382,7 +381,7 @@ fuzz_target!(|items: Vec<Item>| {
                 m.step(updates.min(256));
             }
             // The firmware's `mark_dirty` box (the pose and every beam end).
-            let (lo, hi) = ogm_core::mapper::scan_box(
+            let (lo, hi) = ogm_core::map::mapper::scan_box(
                 m.mapper().grid().geometry(),
                 m.mapper().config(),
                 &pose,
@@ -406,7 +405,7 @@ fuzz_target!(|items: Vec<Item>| {
         }
     });
     let tc = turns.counters();
-    assert!(tc.turns <= tc.packets && turns.waiting() <= ogm_core::turn::QUEUE);
+    assert!(tc.turns <= tc.packets && turns.waiting() <= ogm_core::lidar::turn::QUEUE);
     let _ = turn_maps;
     if let Some(m) = machine.as_ref() {
         let (mapper, gibbs) = (m.mapper(), m.gibbs());

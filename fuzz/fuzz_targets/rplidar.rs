@@ -1,4 +1,4 @@
-//! The RPLIDAR parser (`ogm_core::rplidar`): arbitrary bytes through `RplidarParser` (in chunks
+//! The RPLIDAR parser (`ogm_core::lidar::rplidar`): arbitrary bytes through `RplidarParser` (in chunks
 //! whose size the input picks), `Node::parse` / `Descriptor::parse` on every window,
 //! `RplidarReader` (a `RangeSensor`) over the same bytes, and the encoder on beams made from the
 //! bytes. Invariants: nothing panics; every accepted node or descriptor re-encodes to the bytes
@@ -8,12 +8,12 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use ogm_core::hal::RangeSensor;
-use ogm_core::rplidar::{
+use ogm_core::lidar::rplidar::{
     beam_angle, encode_scan, scan_len, theta_q6, Descriptor, Event, Node, RplidarError,
     RplidarParser, RplidarReader, DESCRIPTOR_LEN, HEALTH_LEN, INFO_LEN, MAX_RANGE_MM, NODE_LEN,
     SAMPLERATE_LEN, TURN_Q6,
 };
+use ogm_core::lidar::source::RangeSensor;
 use ogm_core::{Angle, Beam, Range, ScanBuf};
 
 fuzz_target!(|data: &[u8]| {

@@ -25,7 +25,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{ensure, Context};
-use ogm_core::mapper::marks_len;
+use ogm_core::map::mapper::marks_len;
 use ogm_core::{Beam, LogOdds, LogOddsGrid, Mapper, MapperConfig, Range};
 use serde::Serialize;
 use sha2::{Digest, Sha256};

@@ -437,11 +437,11 @@ pub fn firmware_bounds() -> Bounds {
 }
 
 /// `cfg` as the firmware runs it: [`firmware_bounds`] and the firmware's tile-visit block grid
-/// (`ogm_core::gibbs::DEFAULT_BLOCK_GRID`, which sizes its block bitsets).
+/// (`ogm_core::sampler::gibbs::DEFAULT_BLOCK_GRID`, which sizes its block bitsets).
 pub fn with_firmware_bounds(cfg: SamplingConfig) -> SamplingConfig {
     SamplingConfig {
         bounds: firmware_bounds(),
-        block_grid: ogm_core::gibbs::DEFAULT_BLOCK_GRID,
+        block_grid: ogm_core::sampler::gibbs::DEFAULT_BLOCK_GRID,
         ..cfg
     }
 }

@@ -6,7 +6,7 @@
 //!   the cell size the patch prior was learnt at; the paper used 2 cm for the Intel lab).
 //! * **Mapper.** `ogm_core`'s Hähnel mapper ([`crate::sim::new_mapper`]) with maximum range
 //!   `min(sensor range, --range-cap)`: a hit at or beyond it frees cells up to the cap and marks
-//!   nothing, like a no-return. Scans go through `ogm_core::pipeline::map_next_scan` with a
+//!   nothing, like a no-return. Scans go through `ogm_core::session::pipeline::map_next_scan` with a
 //!   [`ReplaySensor`] over the recorded scans — the trait path the firmware uses.
 //! * **Benchmark.** Traditional OGM on all of the log's scans and beams; a cell some
 //!   measurement updated is occupied iff p > [`BENCHMARK_THRESHOLD`] (0.20; see
@@ -40,8 +40,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, ensure, Context};
-use ogm_core::mapper::marks_len;
-use ogm_core::pipeline::map_next_scan;
+use ogm_core::map::mapper::marks_len;
+use ogm_core::session::pipeline::map_next_scan;
 use ogm_core::{GridGeometry, LogOdds, MapperConfig, Pose, Range, RangeSensor, ScanBuf};
 use serde::{Deserialize, Serialize};
 
@@ -197,7 +197,7 @@ pub struct Mapped {
     pub seconds: f64,
 }
 
-/// Maps `scans` online through `ogm_core::pipeline::map_next_scan`.
+/// Maps `scans` online through `ogm_core::session::pipeline::map_next_scan`.
 pub fn map_scans(
     geometry: GridGeometry,
     config: MapperConfig,

@@ -29,9 +29,10 @@ use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, ensure, Context};
-use ogm_core::gibbs::Count;
+use ogm_core::config::{Budget, LidarModel, RunConfig};
+use ogm_core::sampler::gibbs::Count;
 use ogm_core::session::{Owned, Session, Sizes};
-use ogm_core::wire::{Budget, Counters, Done, LidarModel, RunConfig, SamplerReport, ScanReport};
+use ogm_core::wire::{Counters, Done, SamplerReport, ScanReport};
 use ogm_core::ScanBuf;
 use ogm_firmware::app::MAX_BEAMS;
 use ogm_firmware::{App, Fed, Memory, Platform, Work};
@@ -165,10 +166,10 @@ pub enum LidarArg {
 
 impl LidarArg {
     /// The settings' lidar.
-    pub fn model(self) -> ogm_core::wire::LidarModel {
+    pub fn model(self) -> ogm_core::config::LidarModel {
         match self {
-            LidarArg::Ld06 => ogm_core::wire::LidarModel::Ld06,
-            LidarArg::Rplidar => ogm_core::wire::LidarModel::Rplidar { sample_us: 500 },
+            LidarArg::Ld06 => ogm_core::config::LidarModel::Ld06,
+            LidarArg::Rplidar => ogm_core::config::LidarModel::Rplidar { sample_us: 500 },
         }
     }
 
@@ -195,7 +196,7 @@ pub enum PatternArg {
 pub struct SamplerArgs {
     /// Measurement term: rays, evidence or hybrid.
     #[arg(long, value_parser = parse_data_term)]
-    pub data: Option<ogm_core::gibbs::DataTerm>,
+    pub data: Option<ogm_core::config::DataTerm>,
     /// Evidence gain, Q8 (256 = the log-odds as they are).
     #[arg(long)]
     pub evidence_gain: Option<u16>,
@@ -213,7 +214,7 @@ pub struct SamplerArgs {
     /// lengthening to 2^MAX where a tile's evidence stays unchanged; `reset` restarts changed
     /// cells at their log-odds probability). The robot's: `avg:3-7:reset`.
     #[arg(long, value_parser = parse_estimator)]
-    pub estimator: Option<ogm_core::gibbs::Estimator>,
+    pub estimator: Option<ogm_core::config::Estimator>,
     /// Tile visits (of 256) that go to changed tiles.
     #[arg(long)]
     pub hot_share: Option<u8>,
@@ -240,8 +241,8 @@ impl SamplerArgs {
 }
 
 /// `rays`, `evidence` or `hybrid`.
-pub fn parse_data_term(s: &str) -> Result<ogm_core::gibbs::DataTerm, String> {
-    use ogm_core::gibbs::DataTerm;
+pub fn parse_data_term(s: &str) -> Result<ogm_core::config::DataTerm, String> {
+    use ogm_core::config::DataTerm;
     match s {
         "rays" => Ok(DataTerm::Rays),
         "evidence" => Ok(DataTerm::Evidence),
@@ -253,8 +254,8 @@ pub fn parse_data_term(s: &str) -> Result<ogm_core::gibbs::DataTerm, String> {
 /// `counts`, or `avg:SHIFT[-MAX]` / `rb:SHIFT[-MAX]` followed by `:reset` (restart changed
 /// cells): the average of draws, or of conditional probabilities (Rao-Blackwellised), whose
 /// shift lengthens from SHIFT to MAX (default: SHIFT) where the evidence settles.
-pub fn parse_estimator(s: &str) -> Result<ogm_core::gibbs::Estimator, String> {
-    use ogm_core::gibbs::Estimator;
+pub fn parse_estimator(s: &str) -> Result<ogm_core::config::Estimator, String> {
+    use ogm_core::config::Estimator;
     let parts: Vec<&str> = s.split(':').collect();
     let bad =
         || format!("`{s}`: expected counts, avg:SHIFT[-MAX][:reset] or rb:SHIFT[-MAX][:reset]");
@@ -583,7 +584,7 @@ pub struct HostMemory<N: Count> {
     session: Option<ReplaySession<N>>,
     scan: ScanBuf<MAX_BEAMS>,
     turn: ScanBuf<MAX_BEAMS>,
-    turns: ogm_core::turn::Turns,
+    turns: ogm_core::lidar::turn::Turns,
     tx: [u8; ogm_core::wire::MAX_DEVICE_FRAME],
     tile: [u8; ogm_core::wire::MAX_TILE_BYTES],
 }
@@ -595,7 +596,10 @@ impl<N: Count> HostMemory<N> {
             session: None,
             scan: ScanBuf::new(),
             turn: ScanBuf::new(),
-            turns: ogm_core::turn::Turns::new(ogm_core::pose_track::Mount::ZERO, false),
+            turns: ogm_core::lidar::turn::Turns::new(
+                ogm_core::lidar::pose_track::Mount::ZERO,
+                false,
+            ),
             tx: [0; ogm_core::wire::MAX_DEVICE_FRAME],
             tile: [0; ogm_core::wire::MAX_TILE_BYTES],
         })
@@ -626,7 +630,7 @@ impl<N: Count> HostMemory<N> {
 /// the scans). The two are read as the firmware's main loop reads its UARTs — the lidar
 /// whenever the application wants it, the link when the application wants it or the lidar has
 /// nothing left — and the application's result does not depend on how they interleave
-/// (`ogm_core::turn`), so this gives the board's map.
+/// (`ogm_core::lidar::turn`), so this gives the board's map.
 fn replay<N: Count, R>(
     input: &[u8],
     lidar: &[u8],
@@ -1483,14 +1487,14 @@ fn noise_report(input: &RunInput, corrupted: &[usize], g: &Groups) -> anyhow::Re
                 n.packets += 1;
                 if bad {
                     n.damaged_packets += 1;
-                    let valid = <&[u8; ogm_core::ld06::PACKET_LEN]>::try_from(bytes)
-                        .is_ok_and(|b| ogm_core::ld06::Packet::parse(b).is_ok());
+                    let valid = <&[u8; ogm_core::lidar::ld06::PACKET_LEN]>::try_from(bytes)
+                        .is_ok_and(|b| ogm_core::lidar::ld06::Packet::parse(b).is_ok());
                     if valid {
                         // Past the LD06's own checks: the robot cannot tell, nor lose it.
                         n.undetected_packets += 1;
                         bad = false;
                     } else {
-                        scan_damaged += ogm_core::ld06::POINTS as u64;
+                        scan_damaged += ogm_core::lidar::ld06::POINTS as u64;
                     }
                 }
                 if !bad && !finished {
@@ -1841,10 +1845,10 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         poses.truncate(n + 1);
     }
     let config = RunConfig {
-        mount: ogm_core::wire::WirePose {
+        mount: ogm_core::Pose {
             x_mm: ROBOT_MOUNT_X_MM,
             y_mm: 0,
-            heading: 0,
+            heading: ogm_core::Angle(0),
         },
         lidar: args.lidar.model(),
         ..run_config(&world, args, sim.mapper_config.max_range_mm)
@@ -1895,7 +1899,7 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         finish: &input.finish,
         last_turn: input.turns.saturating_sub(1),
         answers: matches!(config.lidar, LidarModel::Rplidar { .. })
-            .then_some(ogm_core::rplidar::REQ_SCAN),
+            .then_some(ogm_core::lidar::rplidar::REQ_SCAN),
     };
     let QemuRun {
         stream,
@@ -1931,9 +1935,11 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     }
     // What an RPLIDAR must hear before it scans: STOP, then SCAN; an LD06 nothing.
     let want: &[u8] = match config.lidar {
-        LidarModel::Rplidar { .. } => {
-            &[ogm_core::rplidar::REQ_STOP, ogm_core::rplidar::REQ_SCAN].concat()
-        }
+        LidarModel::Rplidar { .. } => &[
+            ogm_core::lidar::rplidar::REQ_STOP,
+            ogm_core::lidar::rplidar::REQ_SCAN,
+        ]
+        .concat(),
         LidarModel::Ld06 => &[],
     };
     checker.eq(
@@ -2360,7 +2366,7 @@ pub fn cli(args: &FirmwareArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::parse_estimator;
-    use ogm_core::gibbs::Estimator;
+    use ogm_core::config::Estimator;
 
     #[test]
     fn estimator_options_parse_and_bad_ones_say_why() {

@@ -2,12 +2,12 @@
 //! §III-A): a host-only Gibbs sampler over 5 × 5 patches with the *unconditioned* data-driven
 //! prior p(a_k) of the committed L = 25 histogram ([`crate::prior::L25::committed`]).
 //!
-//! `ogm_core::gibbs` keeps patch configurations in 16-bit words, so 5 × 5 (25-bit) patches do
+//! `ogm_core::sampler::gibbs` keeps patch configurations in 16-bit words, so 5 × 5 (25-bit) patches do
 //! not fit it; this module is the same algorithm in `std` code, built from ogm-core's public
-//! pieces: the [`ogm_core::ray_store::RayStore`] and the fixed-point [`ForwardModel`], built by
+//! pieces: the [`ogm_core::sampler::ray_store::RayStore`] and the fixed-point [`ForwardModel`], built by
 //! `sampling::rays_and_model` as for the other samplers (Bresenham rays from the pose's
 //! cell to the far end at maximum range, measured ranges as step indices, min-range and capacity
-//! handling), and the store's `ray_geometry` ([`ogm_core::ray::Ray`] and the step length). What it does, per patch update (Algorithm 1):
+//! handling), and the store's `ray_geometry` ([`ogm_core::map::ray::Ray`] and the step length). What it does, per patch update (Algorithm 1):
 //!
 //! * **Patch**: a uniformly random 5 × 5 patch inside the map (centres two cells from the edge).
 //! * **p_randPatch**: with probability [`SamplingConfig::p_rand_patch`] a uniformly random
@@ -21,24 +21,24 @@
 //!   showed it (below every seen window; the paper's prior would make it impossible).
 //! * **Weights** (Eq. 1): `ln p(w)` plus Σ over the rays crossing the patch of
 //!   `ln p(z_n | f_n(w))`, `f_n(w)` the ray's first occupied step given the patch takes `w`
-//!   (the rest of the map as sampled). As in `ogm_core::gibbs`, a ray whose first occupied cell
+//!   (the rest of the map as sampled). As in `ogm_core::sampler::gibbs`, a ray whose first occupied cell
 //!   lies before the patch is the same for every candidate and skipped, and each ray's first
 //!   occupied step in the current sample is cached and kept up to date.
 //! * **Marginals**: after burn-in, every completed sweep (⌈K/25⌉ updates: one map sample) adds
 //!   the sample to per-cell counts (`Estimator::Counts`, the paper's).
 //!
-//! The forward model evaluation is the same fixed-point arithmetic as `ogm_core::gibbs` (its
-//! log-likelihood in LSB of [`ogm_core::fixed::LSB_NATS`]); the weights are then combined and
+//! The forward model evaluation is the same fixed-point arithmetic as `ogm_core::sampler::gibbs` (its
+//! log-likelihood in LSB of [`ogm_core::types::fixed::LSB_NATS`]); the weights are then combined and
 //! drawn in `f64`. Deterministic for a seed (`Xoshiro256PlusPlus`).
 
 use std::collections::HashMap;
 use std::sync::{Arc, OnceLock};
 
 use anyhow::ensure;
-use ogm_core::fixed::LSB_NATS;
-use ogm_core::forward_model::ForwardModel;
-use ogm_core::gibbs::SamplerStats;
-use ogm_core::ray_store::{StoreStats, NONE};
+use ogm_core::sampler::forward_model::ForwardModel;
+use ogm_core::sampler::gibbs::SamplerStats;
+use ogm_core::sampler::ray_store::{StoreStats, NONE};
+use ogm_core::types::fixed::LSB_NATS;
 use ogm_core::{GridGeometry, LogOdds, MapperConfig};
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -51,7 +51,7 @@ use crate::sampling::SamplingConfig;
 pub const SIZE: i32 = 5;
 /// Cells per patch (L).
 pub const CELLS: u32 = 25;
-/// The 25 bits of a patch configuration (the layout of [`ogm_core::patch`]: cell (row r,
+/// The 25 bits of a patch configuration (the layout of [`ogm_core::sampler::patch`]: cell (row r,
 /// column c) is bit 5r + c, row 0 at the bottom).
 pub const MASK: u32 = (1 << CELLS) - 1;
 const HALF: i32 = SIZE / 2;
@@ -235,7 +235,7 @@ impl L25Sampler {
     /// Stores the dataset's rays (capacity as `cfg.bounds.rays` / `.scans`, unbounded by
     /// default), indexes them by cell and starts from `map` thresholded at
     /// `cfg.init_threshold`. `cfg.max_candidates` is K; the other bounds (local list, `u8`
-    /// counts) belong to `ogm_core::gibbs` and do not apply.
+    /// counts) belong to `ogm_core::sampler::gibbs` and do not apply.
     pub fn new(
         geometry: GridGeometry,
         mapper: &MapperConfig,
@@ -605,7 +605,7 @@ impl L25Sampler {
     }
 
     /// Counters (`single_candidate`, `tile_visits`, `rays_gathered` and `local_overflow` are
-    /// `ogm_core::gibbs`'s and stay 0).
+    /// `ogm_core::sampler::gibbs`'s and stay 0).
     pub fn stats(&self) -> SamplerStats {
         self.stats
     }
@@ -625,7 +625,7 @@ impl L25Sampler {
 pub(crate) mod tests {
     use super::*;
     use crate::sampling::{run_sampler, Variant};
-    use ogm_core::patch::Dihedral;
+    use ogm_core::sampler::patch::Dihedral;
     use ogm_core::{Angle, Beam, Pose, Range};
 
     const CELL: u32 = 100;

@@ -1,5 +1,5 @@
 //! A synthetic 2-D lidar that implements `ogm_core::RangeSensor` — the same trait
-//! `ogm_core::ld06::Ld06Reader` (the LD06 on a serial port) implements — so simulated scans
+//! `ogm_core::lidar::ld06::Ld06Reader` (the LD06 on a serial port) implements — so simulated scans
 //! enter the mapper the way a real sensor's do.
 //!
 //! Beams are cast exactly (Amanatides–Woo, f64) into the ground truth from the robot's pose; the

@@ -10,10 +10,11 @@
 //! robot cannot disagree about the format.
 
 use anyhow::{anyhow, bail, ensure};
-use ogm_core::ld06::{self, theta_cdeg, PACKET_LEN};
+use ogm_core::config::RunConfig;
+use ogm_core::lidar::ld06::{self, theta_cdeg, PACKET_LEN};
 use ogm_core::wire::{
-    self, Counters, DeviceError, DeviceMsg, Done, Hello, HostMsg, Layer, RunConfig, SamplerReport,
-    ScanReport, WireError, WirePose,
+    self, Counters, DeviceError, DeviceMsg, Done, Hello, HostMsg, Layer, SamplerReport, ScanReport,
+    WireError,
 };
 use ogm_core::Beam;
 
@@ -124,7 +125,7 @@ pub fn encode_run(
 
 /// [`encode_run`] sending every host frame `repeat_frames` times in a row (for a noisy link:
 /// a frame is lost only if all its copies are; the robot ignores exact repeats, see
-/// `ogm_core::link`).
+/// `ogm_core::lidar::link`).
 pub fn encode_run_with(
     config: &RunConfig,
     scans: &[ScanRecord],
@@ -179,13 +180,7 @@ pub fn encode_run_idle(
             input.garbage_bytes += junk.len();
             input.push(UnitKind::Garbage, &junk);
         }
-        input.frame(
-            &HostMsg::ScanStart {
-                seq,
-                pose: WirePose::from(s.pose),
-            },
-            repeat_frames,
-        );
+        input.frame(&HostMsg::ScanStart { seq, pose: s.pose }, repeat_frames);
         for p in packets.chunks(PACKET_LEN) {
             input.push(UnitKind::Packet, p);
         }
@@ -277,7 +272,7 @@ pub struct OwnedRanges {
 impl OwnedRanges {
     /// The bins holding a reading: (direction in the robot's frame, reading); an error if the
     /// data has the wrong length.
-    pub fn bins(&self) -> Result<Vec<(ogm_core::Angle, ogm_core::hal::Range)>, WireError> {
+    pub fn bins(&self) -> Result<Vec<(ogm_core::Angle, ogm_core::types::scan::Range)>, WireError> {
         let r = wire::ScanRanges {
             seq: self.seq,
             data: &self.data,
@@ -504,8 +499,8 @@ pub fn decode_file(path: &std::path::Path) -> anyhow::Result<Vec<DeviceEvent>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ogm_core::link::{LinkRx, Step};
-    use ogm_core::wire::Budget;
+    use ogm_core::config::Budget;
+    use ogm_core::lidar::link::{LinkRx, Step};
     use ogm_core::{Angle, Pose, Range, ScanBuf};
 
     fn record(k: u32) -> ScanRecord {

@@ -34,7 +34,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context};
-use ogm_core::wire::{Budget, Counters, DeviceError, Done, HostMsg, Layer, RunConfig, WireError};
+use ogm_core::config::{Budget, RunConfig};
+use ogm_core::wire::{Counters, DeviceError, Done, HostMsg, Layer, WireError};
 use serde::Serialize;
 
 use crate::link::{host_frame, DeviceEvent, HelloInfo, RunInput, StreamDecoder, StreamedMap};
@@ -651,7 +652,7 @@ impl Listener {
             DeviceEvent::Scan(r) => {
                 self.stats.scans_seen += 1;
                 let p = r.pose;
-                let heading = f64::from(p.heading) * std::f64::consts::TAU / 65_536.0;
+                let heading = f64::from(p.heading.0) * std::f64::consts::TAU / 65_536.0;
                 let (x, y) = (f64::from(p.x_mm) / 1000.0, f64::from(p.y_mm) / 1000.0);
                 let t = crate::recording::now_ns();
                 if let Some(rec) = self.recording.as_mut() {

@@ -400,12 +400,12 @@ pub fn stream_probabilities(
 /// The count that means p = 1: the last `Sampler` report's `samples` under the paper's
 /// estimator (`Estimator::Counts`), else the robot's `count_max` (255 without a `Hello`).
 pub fn counts_of_one(
-    config: Option<&ogm_core::wire::RunConfig>,
+    config: Option<&ogm_core::config::RunConfig>,
     hello: Option<&HelloInfo>,
     samples: u32,
 ) -> u32 {
     match config.map(|c| c.estimator) {
-        Some(ogm_core::gibbs::Estimator::Counts) => samples,
+        Some(ogm_core::config::Estimator::Counts) => samples,
         _ => hello.map_or(255, |h| h.count_max),
     }
 }

@@ -1,6 +1,6 @@
 //! The range sensor's noise, estimated from the data itself rather than hand-set: the forward
 //! model's σ and outlier rate, and through σ the weight of free evidence
-//! (`ogm_core::gibbs::free_evidence_q8`).
+//! (`ogm_core::config::noise::free_evidence_q8`).
 //!
 //! For every hit of a sample of the scans, look along the beam within ±[`WINDOW_CELLS`] of the
 //! measured range for the cell the log-odds map (built from the same scans) believes most

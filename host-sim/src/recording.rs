@@ -195,18 +195,18 @@ pub fn points_message(points: &[(f64, f64)], t_ns: u64) -> serde_json::Value {
 /// The hits of a scan's ranges as points in the map frame, the robot at (`x_m`, `y_m`) facing
 /// `heading` (rad); bins with no return are left out.
 pub fn scan_points(
-    bins: &[(ogm_core::Angle, ogm_core::hal::Range)],
+    bins: &[(ogm_core::Angle, ogm_core::types::scan::Range)],
     x_m: f64,
     y_m: f64,
     heading: f64,
 ) -> Vec<(f64, f64)> {
     bins.iter()
         .filter_map(|&(a, r)| match r {
-            ogm_core::hal::Range::Hit(mm) => {
+            ogm_core::types::scan::Range::Hit(mm) => {
                 let (d, th) = (f64::from(mm) / 1000.0, heading + a.to_radians());
                 Some((x_m + d * th.cos(), y_m + d * th.sin()))
             }
-            ogm_core::hal::Range::NoReturn => None,
+            ogm_core::types::scan::Range::NoReturn => None,
         })
         .collect()
 }

@@ -22,9 +22,10 @@
 use std::ops::Range;
 
 use anyhow::ensure;
-use ogm_core::ld06::{self, Packet, Point, POINTS};
-use ogm_core::rplidar::{self, Node};
-use ogm_core::wire::{HostMsg, LidarModel, RunConfig, ScanReport, WirePose};
+use ogm_core::config::{LidarModel, RunConfig};
+use ogm_core::lidar::ld06::{self, Packet, Point, POINTS};
+use ogm_core::lidar::rplidar::{self, Node};
+use ogm_core::wire::{HostMsg, ScanReport};
 use ogm_core::{Angle, Pose};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
@@ -124,14 +125,14 @@ impl Trajectory {
 
     /// Where a lidar mounted at `mount` (`RunConfig::mount`: x forward, y left, mm; its 0°
     /// relative to the heading) is at `t_us`, in f64: (x mm, y mm, heading rad).
-    pub fn sensor_at(&self, mount: &WirePose, t_us: u64) -> (f64, f64, f64) {
+    pub fn sensor_at(&self, mount: &Pose, t_us: u64) -> (f64, f64, f64) {
         let (x, y, h) = self.at(t_us);
         let (c, s) = (h.cos(), h.sin());
         let (mx, my) = (f64::from(mount.x_mm), f64::from(mount.y_mm));
         (
             x + mx * c - my * s,
             y + mx * s + my * c,
-            h + Angle(mount.heading).to_radians(),
+            h + mount.heading.to_radians(),
         )
     }
 
@@ -290,7 +291,7 @@ pub fn robot_input(
         let at = link.len();
         link.extend(host_frame(&HostMsg::Pose {
             t_us: t,
-            pose: WirePose::from(trajectory.pose_at(t)),
+            pose: trajectory.pose_at(t),
         }));
         timed.push((t, Line::Link, at..link.len()));
         sent += 1;
@@ -320,7 +321,7 @@ pub fn pose_errors(reports: &[ScanReport], input: &RobotInput, config: &RunConfi
     let (mut pos, mut head) = (0.0f64, 0.0f64);
     for r in reports {
         let want = input.trajectory.sensor_at(&config.mount, r.t_us);
-        let got = Pose::from(r.pose);
+        let got = r.pose;
         pos = pos.max((f64::from(got.x_mm) - want.0).hypot(f64::from(got.y_mm) - want.1));
         let dh = (got.heading.to_radians() - want.2).rem_euclid(std::f64::consts::TAU);
         head = head.max(dh.min(std::f64::consts::TAU - dh).to_degrees());

@@ -1,23 +1,24 @@
-//! Runs `ogm_core::gibbs` on a recorded dataset, with host-sized (or firmware-sized) buffers:
+//! Runs `ogm_core::sampler::gibbs` on a recorded dataset, with host-sized (or firmware-sized) buffers:
 //! the paper's Table I/II variants and the robot's own sampler. `gibbs_l9_border` is always the
 //! firmware's default mode (`RunConfig::robot`: per-cell evidence, the evidence's configuration
 //! as a candidate, averaged draws); `gibbs_l9_border_rays` is the paper's (the forward model
 //! over every stored ray, sample counts), `gibbs_l9_border_hybrid` the robot's sampler with
 //! the rays still in the store plus the evidence of what it dropped; `gibbs_l9_border_mean` the
 //! robot's sampler read out as the mean of every counted sweep instead of its moving average. `gibbs_l25` (Table I's
-//! "L = 25, data-driven prior") does not fit `ogm_core::gibbs`'s 16-bit patch words and runs on
+//! "L = 25, data-driven prior") does not fit `ogm_core::sampler::gibbs`'s 16-bit patch words and runs on
 //! the host-only sampler of [`crate::l25`] instead.
 
 use std::time::Instant;
 
 use anyhow::anyhow;
-use ogm_core::forward_model::ForwardModel;
-use ogm_core::gibbs::{
-    block_words, BorderPrior, Buffers, ConstantCellPrior, DataTerm, Estimator, Gibbs, LocalRay,
-    NeighbourPrior, PatchPrior, SamplerConfig, SamplerStats, UnconditionedPrior,
+use ogm_core::config::{DataTerm, Estimator};
+use ogm_core::map::sensor_model::InverseSensorModel;
+use ogm_core::sampler::forward_model::ForwardModel;
+use ogm_core::sampler::gibbs::{
+    block_words, BorderPrior, Buffers, ConstantCellPrior, Gibbs, LocalRay, NeighbourPrior,
+    PatchPrior, SamplerConfig, SamplerStats, UnconditionedPrior,
 };
-use ogm_core::ray_store::{RayStore, StoreStats, StoredRay, StoredScan};
-use ogm_core::sensor_model::InverseSensorModel;
+use ogm_core::sampler::ray_store::{RayStore, StoreStats, StoredRay, StoredScan};
 use ogm_core::{GridGeometry, LogOdds, MapperConfig};
 use serde::{Deserialize, Serialize};
 
@@ -100,11 +101,11 @@ impl Variant {
             Variant::L9Border | Variant::L9BorderHybrid | Variant::L9BorderMean => {
                 // The robot's settings at this data set's σ: the face band, or the split free
                 // update and the 1/σ evidence gain.
-                let robot = ogm_core::wire::RunConfig::robot(
+                let robot = ogm_core::config::RunConfig::robot(
                     (0, 0),
                     1,
                     0,
-                    ogm_core::wire::Budget::Fixed { updates: 0 },
+                    ogm_core::config::Budget::Fixed { updates: 0 },
                 )
                 .with_noise_matched(cfg.sigma_cells);
                 SamplingConfig {
@@ -306,14 +307,14 @@ trait Sweeper {
 
 pub(crate) type Store = RayStore<Vec<StoredScan>, Vec<StoredRay>>;
 
-struct Session<P, N: ogm_core::gibbs::Count> {
+struct Session<P, N: ogm_core::sampler::gibbs::Count> {
     store: Store,
     map: Vec<LogOdds>,
     gibbs: Gibbs<P, Vec<u32>, Vec<N>, Vec<LocalRay>, Vec<u32>, N>,
     sweep: u32,
 }
 
-impl<P: PatchPrior, N: ogm_core::gibbs::Count> Sweeper for Session<P, N> {
+impl<P: PatchPrior, N: ogm_core::sampler::gibbs::Count> Sweeper for Session<P, N> {
     fn sweeps(&mut self, n: u32) {
         for _ in 0..n {
             self.gibbs.step(&mut self.store, &self.map, self.sweep);
@@ -368,7 +369,7 @@ impl Prepared {
         };
         let inner: Box<dyn Sweeper> = match variant {
             Variant::L1 => {
-                let p = ogm_core::prior::occupancy_prior().p_occupied();
+                let p = ogm_core::sampler::prior::occupancy_prior().p_occupied();
                 let prior =
                     ConstantCellPrior::new(p).map_err(|e| anyhow!("cell prior {p}: {e}"))?;
                 session(geometry, mapper, scans, map, prior, cfg, seed)?
@@ -489,7 +490,7 @@ pub(crate) fn rays_and_model(
     Ok((store, fm))
 }
 
-fn build<P: PatchPrior, N: ogm_core::gibbs::Count>(
+fn build<P: PatchPrior, N: ogm_core::sampler::gibbs::Count>(
     geometry: GridGeometry,
     mapper: &MapperConfig,
     scans: &[ScanRecord],
@@ -513,7 +514,7 @@ fn build<P: PatchPrior, N: ogm_core::gibbs::Count>(
         evidence_gain_q8: cfg.evidence_gain_q8,
         evidence_free_q8: cfg.evidence_free_q8,
         data_candidate: cfg.data_candidate,
-        floor_log_prior: ogm_core::gibbs::FLOOR_LOG_PRIOR,
+        floor_log_prior: ogm_core::sampler::gibbs::FLOOR_LOG_PRIOR,
         estimator: cfg.estimator,
         hot_share: cfg.hot_share,
     };

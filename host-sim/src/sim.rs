@@ -1,13 +1,13 @@
 //! One simulated dataset: a world, a robot exploring it, the synthetic lidar, and the online
-//! fixed-point mapper — wired through `ogm_core::pipeline::map_next_scan` and the `hal` traits
+//! fixed-point mapper — wired through `ogm_core::session::pipeline::map_next_scan` and the `hal` traits
 //! (`RangeSensor`, `PoseSource`) that `ogm_core`'s LD06 and RPLIDAR readers implement. (Today's
 //! firmware receives its scans as LD06 packets framed with poses on the host link and maps them
 //! with the same mapper through `ogm_core::session::Session`; `host-sim firmware` sends it this
 //! module's scans that way.)
 
 use anyhow::{anyhow, ensure, Context};
-use ogm_core::mapper::marks_len;
-use ogm_core::pipeline::map_next_scan;
+use ogm_core::map::mapper::marks_len;
+use ogm_core::session::pipeline::map_next_scan;
 use ogm_core::{
     GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose, PoseSource, ScanBuf,
 };
@@ -139,7 +139,7 @@ pub fn mark_observed(
     marks: &mut [u32],
     observed: &mut [bool],
 ) -> anyhow::Result<()> {
-    ogm_core::mapper::classify_scan(geometry, config, pose, beams, marks, |i, _| {
+    ogm_core::map::mapper::classify_scan(geometry, config, pose, beams, marks, |i, _| {
         if let Some(o) = observed.get_mut(i) {
             *o = true;
         }

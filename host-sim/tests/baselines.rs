@@ -9,8 +9,8 @@ use host_sim::baselines::factor_graph::{FactorGraph, FactorSpec, UnaryPrior};
 use host_sim::baselines::{build_graph, fig2, mh, run_method, BaselineConfig, Method, SensorModel};
 use host_sim::explore::ScanRecord;
 use host_sim::sampling::{run_sampler, SamplingConfig, Variant};
-use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
 use ogm_core::reference::ReferenceModel;
+use ogm_core::sampler::ray_store::{RayStore, StoredRay, StoredScan};
 use ogm_core::{Angle, Beam, GridGeometry, LogOdds, MapperConfig, Pose, Range};
 
 const CELL: u32 = 100;

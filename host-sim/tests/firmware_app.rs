@@ -4,10 +4,9 @@
 
 use host_sim::firmware::HostMemory;
 use host_sim::link::{host_frame, scan_packets, DeviceEvent, StreamDecoder, StreamedMap};
+use ogm_core::config::{Budget, RunConfig};
 use ogm_core::session::{Owned, Session, Sizes};
-use ogm_core::wire::{
-    self, Budget, ConfigFault, ErrorCode, HostMsg, LinkFault, RunConfig, TileSource,
-};
+use ogm_core::wire::{self, ConfigFault, ErrorCode, HostMsg, LinkFault, TileSource};
 use ogm_core::{Angle, Beam, Pose, Range};
 use ogm_firmware::sizes::MPS2_AN386 as FW;
 use ogm_firmware::{Fed, Platform, Work};
@@ -86,10 +85,7 @@ fn scan_input(seq: u32, pose: Pose, ts: &mut u16) -> Vec<u8> {
             }
         })
         .collect();
-    let mut v = host_frame(&HostMsg::ScanStart {
-        seq,
-        pose: pose.into(),
-    });
+    let mut v = host_frame(&HostMsg::ScanStart { seq, pose });
     v.extend(scan_packets(&beams, ts).expect("360 beams"));
     v.extend(host_frame(&HostMsg::ScanEnd { seq, points: 360 }));
     v
@@ -236,11 +232,7 @@ fn a_run_streams_exactly_the_engine_map() {
 /// The 360 beams of [`scan_input`]'s room from `pose`, as bare LD06 packets (the lidar's UART).
 fn room_packets(pose: Pose, ts: &mut u16) -> Vec<u8> {
     let framed = scan_input(0, pose, ts);
-    let start = host_frame(&HostMsg::ScanStart {
-        seq: 0,
-        pose: pose.into(),
-    })
-    .len();
+    let start = host_frame(&HostMsg::ScanStart { seq: 0, pose }).len();
     let end = host_frame(&HostMsg::ScanEnd {
         seq: 0,
         points: 360,
@@ -319,7 +311,7 @@ fn a_standing_robot_maps_its_lidar_uart_like_tunnelled_scans() {
     for k in 0..12u64 {
         link.extend(host_frame(&HostMsg::Pose {
             t_us: k * 30_000,
-            pose: at.into(),
+            pose: at,
         }));
     }
     for chunk in [1, 7, 47, 500] {
@@ -328,7 +320,7 @@ fn a_standing_robot_maps_its_lidar_uart_like_tunnelled_scans() {
         let reports = scan_reports(&ev_b);
         // Turns 0 and 1 are closed (turn 2's last packet waits for its pose at 300 ms).
         assert!(reports.len() >= 2, "chunk {chunk}: {reports:?}");
-        assert_eq!(reports[0].pose, at.into());
+        assert_eq!(reports[0].pose, at);
         assert_eq!((reports[0].t_us, reports[1].t_us), (0, 100_000));
         assert_eq!(scan_reports(&ev_a)[1].beams, reports[1].beams);
         // The first two turns are the tunnelled scans, bit for bit; the third adds to them.
@@ -363,7 +355,7 @@ fn the_stored_settings_are_the_robot_settings() {
     assert_eq!(
         STORED_CONFIG,
         RunConfig {
-            poses: wire::PoseInput::Fixed,
+            poses: ogm_core::config::PoseInput::Fixed,
             ..robot
         }
     );
@@ -383,10 +375,10 @@ fn a_moving_robot_places_each_turn_at_the_interpolated_pose() {
             heading: Angle::from_degrees(30.0 * t),
         }
     };
-    let mount = wire::WirePose {
+    let mount = ogm_core::Pose {
         x_mm: 80,
         y_mm: 0,
-        heading: 0,
+        heading: ogm_core::Angle(0),
     };
     let cfg = RunConfig { mount, ..config() };
     let mut lidar = Vec::new();
@@ -398,14 +390,14 @@ fn a_moving_robot_places_each_turn_at_the_interpolated_pose() {
     for k in 0..12u64 {
         link.extend(host_frame(&HostMsg::Pose {
             t_us: k * 40_000,
-            pose: truth(k * 40_000).into(),
+            pose: truth(k * 40_000),
         }));
     }
     let (ev, _) = run_robot(&link, &lidar, 47);
     assert!(errors(&ev).is_empty(), "{:?}", errors(&ev));
     let reports = scan_reports(&ev);
     assert!(reports.len() >= 3, "{reports:?}");
-    let m = ogm_core::pose_track::Mount {
+    let m = ogm_core::lidar::pose_track::Mount {
         x_mm: 80,
         y_mm: 0,
         yaw: Angle(0),
@@ -413,7 +405,7 @@ fn a_moving_robot_places_each_turn_at_the_interpolated_pose() {
     for r in &reports {
         // Linear interpolation of a straight line: exact to the mm; heading within 2 units.
         let want = m.sensor_pose(&truth(r.t_us));
-        let got = Pose::from(r.pose);
+        let got = r.pose;
         assert!((got.x_mm - want.x_mm).abs() <= 1, "{got:?} {want:?}");
         assert!((got.y_mm - want.y_mm).abs() <= 1, "{got:?} {want:?}");
         assert!(

@@ -7,8 +7,8 @@ use std::path::Path;
 use host_sim::prior::codegen::{emit_core_table, emit_l25_table, CoreTables, PruneParams};
 use host_sim::prior::train::{train, Corpus};
 use host_sim::prior::{HOUSEEXPO_M_PER_PX, L25};
-use ogm_core::patch::Dihedral;
-use ogm_core::prior::{self, log_prior_of_probability, PriorSource};
+use ogm_core::sampler::patch::Dihedral;
+use ogm_core::sampler::prior::{self, log_prior_of_probability, PriorSource};
 
 /// A map drawn with `#` occupied, `.` free, `?` unknown; rows given top first (as an image).
 struct Drawing(&'static [&'static str]);

@@ -1,4 +1,4 @@
-//! The committed prior tables (`ogm-core/src/prior_table.rs`, `host-sim/src/prior/l25_table.rs`)
+//! The committed prior tables (`ogm-core/src/sampler/prior/table.rs`, `host-sim/src/prior/l25_table.rs`)
 //! are exactly what the training corpus `../shared/data/maps/train` generates.
 //!
 //! Without the shared data this test passes with a loud `SKIPPED` line on stderr (written

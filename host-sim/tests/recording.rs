@@ -8,9 +8,10 @@ use std::process::Command;
 
 use base64::Engine;
 use host_sim::listen::{Listener, Notice};
-use ogm_core::hal::{Beam, Range};
-use ogm_core::wire::{self, DeviceMsg, Layer, ScanRanges, ScanReport, Tile, WirePose};
+use ogm_core::types::scan::{Beam, Range};
+use ogm_core::wire::{self, DeviceMsg, Layer, ScanRanges, ScanReport, Tile};
 use ogm_core::Angle;
+use ogm_core::Pose;
 
 mod stream_fixture;
 use stream_fixture::{frame, half_free_tile, hello_and_config, EDGE, W};
@@ -26,10 +27,10 @@ fn session_parts() -> Vec<Vec<u8>> {
         frame(
             &DeviceMsg::Scan(ScanReport {
                 seq: seq as u32,
-                pose: WirePose {
+                pose: Pose {
                     x_mm,
                     y_mm,
-                    heading,
+                    heading: ogm_core::Angle(heading),
                 },
                 ..ScanReport::default()
             }),

@@ -23,10 +23,10 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use ogm_core::mapper::{marks_len, Reports, UpdateListener};
-use ogm_core::ray::Ray;
+use ogm_core::map::mapper::{marks_len, Reports, UpdateListener};
+use ogm_core::map::ray::Ray;
+use ogm_core::map::sensor_model::InverseSensorModel;
 use ogm_core::reference::{Increments, ReferenceMapper};
-use ogm_core::sensor_model::InverseSensorModel;
 use ogm_core::{
     Angle, Beam, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose, Range,
 };

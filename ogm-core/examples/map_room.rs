@@ -1,6 +1,6 @@
 //! The engine's common path: scans of a 6 m square room `insert`ed, the map improved by `step`.
+use ogm_core::config::{Budget, RunConfig};
 use ogm_core::session::{Owned, Session, Sizes};
-use ogm_core::wire::{Budget, RunConfig};
 use ogm_core::{Angle, Beam, Pose, Range};
 /// A synthetic lidar: 360 beams from (x, y) mm in a room with walls at ±3 m.
 fn scan(x: f64, y: f64) -> Vec<Beam> {

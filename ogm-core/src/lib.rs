@@ -1,16 +1,19 @@
 //! # ogm-core
 //!
 //! Occupancy grid mapping for microcontrollers: `no_std`, no allocator, fixed point.
+//! [`Session`] is the one way in: built from a [`RunConfig`] over caller memory of [`Sizes`],
+//! it inserts scans ([`Session::insert`]) and improves the map between them ([`Session::step`]).
 //!
-//! * [`fixed`] — `i16` log-odds in units of ln(4)/1024, so the papers' Hähnel model is exact;
-//! * [`geometry`], [`angle`] — integer poses, binary angles, world ↔ cell transforms;
-//! * [`ray`] — Bresenham traversal in closed form, with exact clipping;
-//! * [`sensor_model`] — inverse sensor models (Hähnel ray model, the lecture's α/β cone);
-//! * [`mapper`] — online log-odds updates ("traditional OGM"), hits win within a scan;
-//! * [`hal`] — the traits through which scans and poses enter (firmware and simulator alike);
-//! * [`pipeline`] — the loop step both call;
+//! ## Layers, bottom up (a layer imports only those below it)
+//! * [`types`] — binary angles, `i16` log-odds in units of ln(4)/1024, integer poses, the
+//!   world ↔ cell transform, a scan's beams; and [`error`], the crate's one error type;
+//! * [`config`] — the run's settings as plain data ([`RunConfig`]), what the host sends;
+//! * [`wire`] — the host link's frames and messages and the map stream's tile codec;
+//! * [`map`] — online log-odds mapping: grid, rays, inverse sensor models, the mapper;
+//! * [`sampler`] — the patch prior, forward model, ray store and the patch Gibbs sampler;
+//! * [`lidar`] — LD06 and RPLIDAR parsers, the robot's receive link, turns and pose tracking,
+//!   and the traits through which scans and poses enter;
 //! * [`session`] — the engine: mapper, ray store and sampler behind `insert` / `step`;
-//! * [`wire`] — the host link's messages and the map stream's tile codec;
 //! * [`reference`] — f64 reference implementations for tests (feature `reference`).
 //!
 //! ## Panics
@@ -37,36 +40,29 @@ extern crate alloc;
 #[macro_use]
 mod fmt;
 
-pub mod angle;
 pub mod error;
-pub mod fixed;
-pub mod forward_model;
-pub mod geometry;
-pub mod gibbs;
-pub mod grid;
-pub mod hal;
-pub mod ld06;
-pub mod link;
-pub mod mapper;
-pub mod patch;
-pub mod pipeline;
-pub mod pose_track;
-pub mod prior;
-mod prior_table;
-pub mod ray;
-pub mod ray_store;
-#[cfg(feature = "reference")]
-pub mod reference;
-pub mod rplidar;
-pub mod sensor_model;
-pub mod session;
-pub mod turn;
+pub mod types;
+
+pub mod config;
 pub mod wire;
 
-pub use angle::Angle;
+pub mod map;
+pub mod sampler;
+
+pub mod lidar;
+
+pub mod session;
+
+#[cfg(feature = "reference")]
+pub mod reference;
+
+pub use config::RunConfig;
 pub use error::{Error, Result};
-pub use fixed::{Clamp, LogOdds};
-pub use geometry::{CellCoord, GridGeometry, Pose};
-pub use grid::LogOddsGrid;
-pub use hal::{Beam, PoseSource, Range, RangeSensor, ScanBuf};
-pub use mapper::{Mapper, MapperConfig, ScanStats};
+pub use lidar::source::{PoseSource, RangeSensor};
+pub use map::grid::LogOddsGrid;
+pub use map::mapper::{Mapper, MapperConfig, ScanStats};
+pub use session::{Session, SessionError, Sizes};
+pub use types::angle::Angle;
+pub use types::fixed::{Clamp, LogOdds};
+pub use types::geometry::{CellCoord, GridGeometry, Pose};
+pub use types::scan::{Beam, Range, ScanBuf};

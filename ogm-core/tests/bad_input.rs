@@ -2,13 +2,14 @@
 //! of the table, named in it. LD06 packets, host frames, poses, ranges and settings: each bad
 //! input is dropped and counted, clamped, or rejected with an error — never a panic.
 
-use ogm_core::gibbs::{block_words, BorderPrior, Buffers, Gibbs, LocalRay, SamplerConfig};
-use ogm_core::ld06::{encode_scan, Ld06Parser, Packet, Point, PACKET_LEN, POINTS};
-use ogm_core::link::{LinkError, LinkRx, Step};
-use ogm_core::mapper::marks_len;
-use ogm_core::pipeline::insert_and_seed;
-use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
-use ogm_core::wire::{self, Budget, HostMsg, LinkCounters, RunConfig, WirePose, MAX_HOST_FRAME};
+use ogm_core::config::{Budget, RunConfig};
+use ogm_core::lidar::ld06::{encode_scan, Ld06Parser, Packet, Point, PACKET_LEN, POINTS};
+use ogm_core::lidar::link::{LinkError, LinkRx, Step};
+use ogm_core::map::mapper::marks_len;
+use ogm_core::sampler::gibbs::{block_words, BorderPrior, Buffers, Gibbs, LocalRay, SamplerConfig};
+use ogm_core::sampler::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::session::pipeline::insert_and_seed;
+use ogm_core::wire::{self, HostMsg, LinkCounters, MAX_HOST_FRAME};
 use ogm_core::{Angle, Beam, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose};
 use ogm_core::{Range, ScanBuf};
 
@@ -64,7 +65,7 @@ fn link<const N: usize>(bytes: &[u8]) -> Delivered {
 fn scan_around(pkts: &[[u8; PACKET_LEN]]) -> Vec<u8> {
     let mut v = frame(&HostMsg::ScanStart {
         seq: 0,
-        pose: WirePose::default(),
+        pose: Pose::default(),
     });
     for p in pkts {
         v.extend_from_slice(p);
@@ -82,7 +83,7 @@ fn ld06_truncated_packet_is_dropped_and_counted() {
     // A good packet, one cut after 20 bytes, another good one: only the cut one is lost.
     let mut v = frame(&HostMsg::ScanStart {
         seq: 0,
-        pose: WirePose::default(),
+        pose: Pose::default(),
     });
     v.extend_from_slice(&good);
     v.extend_from_slice(&good[..20]);
@@ -195,10 +196,10 @@ fn oversized_scan_is_cut_and_counted() {
 fn bad_frames_are_dropped_and_counted() {
     let start = frame(&HostMsg::ScanStart {
         seq: 7,
-        pose: WirePose {
+        pose: Pose {
             x_mm: 10,
             y_mm: 20,
-            heading: 30,
+            heading: ogm_core::Angle(30),
         },
     });
     // Truncated: the frame's second half is missing (the next frame's 0x00 ends it).
@@ -257,7 +258,7 @@ fn scan_framing_errors_are_counted() {
     let mut v = p.to_vec(); // points outside a scan
     v.extend(frame(&HostMsg::ScanStart {
         seq: 1,
-        pose: WirePose::default(),
+        pose: Pose::default(),
     }));
     v.extend(frame(&HostMsg::ScanEnd { seq: 2, points: 12 })); // wrong seq
     let (scans, errors, c) = link::<64>(&v);
@@ -360,13 +361,6 @@ fn pose_outside_the_map_is_clipped() {
         .cells()
         .iter()
         .all(|l| *l >= clamp.min() && *l <= clamp.max()));
-    // A WirePose takes every i32 and u16 as it is: the conversion cannot fail.
-    let w = WirePose {
-        x_mm: i32::MIN,
-        y_mm: i32::MAX,
-        heading: u16::MAX,
-    };
-    assert_eq!(Pose::from(w).heading, Angle(u16::MAX));
 }
 
 #[test]
@@ -427,7 +421,7 @@ fn bad_settings_are_rejected_with_an_error() {
 
 #[test]
 fn nan_and_infinite_model_parameters_are_rejected() {
-    use ogm_core::forward_model::ForwardModel;
+    use ogm_core::sampler::forward_model::ForwardModel;
     for (s, w, r) in [
         (f64::NAN, 0.01, 100.0),
         (3.0, f64::NAN, 100.0),

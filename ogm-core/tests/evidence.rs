@@ -3,14 +3,15 @@
 //! it against fresh reads on every update), "strong evidence wins", and the bytewise averaging
 //! against a scalar reference.
 
-use ogm_core::fixed::LSB_NATS;
-use ogm_core::forward_model::ForwardModel;
-use ogm_core::gibbs::{
-    block_words, free_evidence_q8, BorderPrior, Buffers, Count, DataTerm, Estimator, Gibbs,
-    LocalRay, SamplerConfig, FLOOR_LOG_PRIOR,
+use ogm_core::config::noise::free_evidence_q8;
+use ogm_core::config::{DataTerm, Estimator};
+use ogm_core::sampler::forward_model::ForwardModel;
+use ogm_core::sampler::gibbs::{
+    block_words, BorderPrior, Buffers, Count, Gibbs, LocalRay, SamplerConfig, FLOOR_LOG_PRIOR,
 };
-use ogm_core::patch::{border_of, patch_of};
-use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::sampler::patch::{border_of, patch_of};
+use ogm_core::sampler::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::types::fixed::LSB_NATS;
 use ogm_core::{CellCoord, GridGeometry, LogOdds};
 use rand_core::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -101,11 +102,11 @@ fn evidence_conditional_matches_f64_reference() {
                 }
             }
             let (current, border) = (patch_of(window), border_of(window));
-            let mut buf = [ogm_core::prior::Candidate {
+            let mut buf = [ogm_core::sampler::prior::Candidate {
                 config: 0,
                 log_prior: 0,
             }; 16];
-            let (n, _) = ogm_core::prior::candidates_into(border, &mut buf);
+            let (n, _) = ogm_core::sampler::prior::candidates_into(border, &mut buf);
             let mut cands: Vec<(u16, f64)> = buf[..n]
                 .iter()
                 .map(|c| (c.config, f64::from(c.log_prior) * LSB_NATS))
@@ -287,7 +288,7 @@ fn bytewise_averaging_matches_the_scalar_rule() {
             let u = (dither >> (8 * k)) as u8;
             want[1 + k] = byte_rule(cells[1 + k], bits >> k & 1 != 0, shift, u);
             assert_eq!(
-                ogm_core::gibbs::average_byte(cells[1 + k], bits >> k & 1 != 0, shift, u),
+                ogm_core::sampler::gibbs::average_byte(cells[1 + k], bits >> k & 1 != 0, shift, u),
                 want[1 + k]
             );
         }
@@ -304,8 +305,9 @@ fn stochastic_rounding_is_unbiased_and_reaches_both_ends() {
             for occupied in [false, true] {
                 let sum: i32 = (0..=255u8)
                     .map(|u| {
-                        i32::from(ogm_core::gibbs::average_byte(m, occupied, shift, u))
-                            - i32::from(m)
+                        i32::from(ogm_core::sampler::gibbs::average_byte(
+                            m, occupied, shift, u,
+                        )) - i32::from(m)
                     })
                     .sum();
                 let d = if occupied {
@@ -333,7 +335,7 @@ fn stochastic_rounding_is_unbiased_and_reaches_both_ends() {
 
 #[test]
 fn border_prior_caches_return_what_the_table_does() {
-    use ogm_core::gibbs::{PatchCandidate, PatchPrior};
+    use ogm_core::sampler::gibbs::{PatchCandidate, PatchPrior};
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(4);
     let mut cached = BorderPrior::default();
     let plain = BorderPrior::default();
@@ -378,15 +380,15 @@ fn border_prior_caches_return_what_the_table_does() {
                     .zip(&x[..n])
                     .all(|(l, p)| i32::from(*l) == p.log_prior));
             }
-            None => assert!(ogm_core::prior::smooth_slot(b).is_none()),
+            None => assert!(ogm_core::sampler::prior::smooth_slot(b).is_none()),
         }
     }
 }
 
 #[test]
 fn border_cache_packs_every_border_s_slice_exactly() {
-    use ogm_core::gibbs::PatchPrior;
-    use ogm_core::prior::{slot_span, slot_tables, smooth_slot, span_tables};
+    use ogm_core::sampler::gibbs::PatchPrior;
+    use ogm_core::sampler::prior::{slot_span, slot_tables, smooth_slot, span_tables};
     let mut cached = BorderPrior::default();
     // Each border twice in a row (a miss, then a hit), every entry filled and replaced.
     for b in 0..=u16::MAX {

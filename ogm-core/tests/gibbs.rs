@@ -1,15 +1,15 @@
 //! The Gibbs sampler against the exact posterior (1-D, by enumeration) and against the f64
 //! reference sampler (2-D).
 
-use ogm_core::fixed::LSB_NATS;
-use ogm_core::forward_model::ForwardModel;
-use ogm_core::gibbs::{
+use ogm_core::map::mapper::marks_len;
+use ogm_core::reference::{ReferenceGibbs, ReferenceModel};
+use ogm_core::sampler::forward_model::ForwardModel;
+use ogm_core::sampler::gibbs::{
     block_words, Buffers, ConstantCellPrior, Gibbs, LocalRay, PatchCandidate, PatchPrior,
     SamplerConfig,
 };
-use ogm_core::mapper::marks_len;
-use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
-use ogm_core::reference::{ReferenceGibbs, ReferenceModel};
+use ogm_core::sampler::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::types::fixed::LSB_NATS;
 use ogm_core::{
     Angle, Beam, CellCoord, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose, Range,
 };
@@ -333,7 +333,7 @@ fn fixed_point_marginals_match_f64_reference_sampler() {
 
 #[test]
 fn online_seeding_follows_first_observations_and_keeps_caches_exact() {
-    use ogm_core::pipeline::insert_and_seed;
+    use ogm_core::session::pipeline::insert_and_seed;
     let g = GridGeometry::new(24, 24, CELL, 0, 0).unwrap();
     let max = 20 * CELL;
     let mut st = store(g, max);
@@ -370,14 +370,19 @@ fn online_seeding_follows_first_observations_and_keeps_caches_exact() {
     assert!(st
         .rays()
         .iter()
-        .all(|r| r.first_occupied == ogm_core::ray_store::STALE));
+        .all(|r| r.first_occupied == ogm_core::sampler::ray_store::STALE));
     s.step(&mut st, mapper.grid().cells(), 3000);
     let before: Vec<u16> = st.rays().iter().map(|r| r.first_occupied).collect();
-    assert!(before.iter().any(|&f| f != ogm_core::ray_store::STALE));
+    assert!(before
+        .iter()
+        .any(|&f| f != ogm_core::sampler::ray_store::STALE));
     s.refresh_rays(&mut st, 0..usize::MAX);
     let after: Vec<u16> = st.rays().iter().map(|r| r.first_occupied).collect();
     for (b, a) in before.iter().zip(&after) {
-        assert!(*b == ogm_core::ray_store::STALE || b == a, "{b} vs {a}");
+        assert!(
+            *b == ogm_core::sampler::ray_store::STALE || b == a,
+            "{b} vs {a}"
+        );
     }
     // A second scan from the same pose observes nothing new: only its own rays are refreshed,
     // and already-observed cells keep the sampler's state.

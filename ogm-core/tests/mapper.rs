@@ -1,8 +1,8 @@
 //! Mapper behaviour and the fixed-point vs f64 reference property.
 
-use ogm_core::mapper::marks_len;
+use ogm_core::map::mapper::marks_len;
+use ogm_core::map::sensor_model::InverseSensorModel;
 use ogm_core::reference::{Increments, ReferenceMapper};
-use ogm_core::sensor_model::InverseSensorModel;
 use ogm_core::{
     Angle, Beam, CellCoord, Clamp, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose,
     Range,
@@ -60,7 +60,7 @@ fn one_beam_frees_the_ray_and_hits_its_end() {
 
 #[test]
 fn face_band_spreads_a_reading_over_its_band() {
-    use ogm_core::sensor_model::face_band_delta;
+    use ogm_core::map::sensor_model::face_band_delta;
     let g = geometry(40, 5);
     let mut cfg = MapperConfig::new(5_000);
     // σ = 2 cells: the band reaches 1.5 σ = 3 cells either side of the reading.
@@ -94,8 +94,12 @@ fn face_band_spreads_a_reading_over_its_band() {
         .unwrap();
     assert_eq!((s.cells_hit, s.cells_freed), (0, 38));
     // The streamed box covers the band beyond the reading.
-    let (lo, hi) =
-        ogm_core::mapper::scan_box(&g, &cfg, &pose(2, 2, 0.0), &[beam(0.0, Range::Hit(1_500))]);
+    let (lo, hi) = ogm_core::map::mapper::scan_box(
+        &g,
+        &cfg,
+        &pose(2, 2, 0.0),
+        &[beam(0.0, Range::Hit(1_500))],
+    );
     assert_eq!((lo.x, hi.x), (2, 20));
 }
 
@@ -291,7 +295,7 @@ proptest! {
         compare(cfg, Increments::effective(&cfg), &scans, 1e-9)?;
         // Against the unrounded model: at most half an LSB per scan, since a scan changes a cell
         // at most once; that bound in probability is ≤ n · LSB/2 · 1/4.
-        let bound = scans.len() as f64 * ogm_core::fixed::LSB_NATS / 2.0 / 4.0 + 1e-9;
+        let bound = scans.len() as f64 * ogm_core::types::fixed::LSB_NATS / 2.0 / 4.0 + 1e-9;
         compare(cfg, Increments::nominal(&cfg), &scans, bound.max(1e-9))?;
     }
 
@@ -314,7 +318,7 @@ proptest! {
             .unwrap()
             .with_free_scale(free_q8)
             .unwrap();
-        let bound = scans.len() as f64 * ogm_core::fixed::LSB_NATS / 4.0 + 1e-9;
+        let bound = scans.len() as f64 * ogm_core::types::fixed::LSB_NATS / 4.0 + 1e-9;
         compare(cfg, Increments::effective(&cfg), &scans, bound)?;
     }
 

@@ -1,4 +1,4 @@
-//! Properties of the RPLIDAR parser, reader and encoder (`ogm_core::rplidar`): encoder → parser
+//! Properties of the RPLIDAR parser, reader and encoder (`ogm_core::lidar::rplidar`): encoder → parser
 //! round trips within the wire resolution, chunking independence, garbage before and between
 //! turns, truncation, bit flips (never a panic, always counted), rejection of a node with a bad
 //! check bit followed by resynchronisation, and the scan reader's turn boundaries.
@@ -8,12 +8,12 @@
 //! comes back exactly; `Hit(mm)` comes back exactly for 1 ≤ mm ≤ 16383, `Hit(0)` as `Hit(1)`,
 //! longer hits as `NoReturn` (the node format cannot carry them).
 
-use ogm_core::hal::RangeSensor;
-use ogm_core::rplidar::{
-    beam_angle, encode_scan, scan_len, Event, Node, ReadError, RplidarCounters, RplidarError,
-    RplidarParser, RplidarReader, DESCRIPTOR_LEN, HEALTH_LEN, INFO_LEN, LOCK_NODES,
-    MAX_LOCK_STEP_Q6, MAX_RANGE_MM, NODE_LEN, SAMPLERATE_LEN, SCAN_DESCRIPTOR, TURN_Q6,
+use ogm_core::lidar::rplidar::{
+    beam_angle, encode_scan, scan_len, Event, Node, RplidarCounters, RplidarError, RplidarParser,
+    RplidarReader, DESCRIPTOR_LEN, HEALTH_LEN, INFO_LEN, LOCK_NODES, MAX_LOCK_STEP_Q6,
+    MAX_RANGE_MM, NODE_LEN, SAMPLERATE_LEN, SCAN_DESCRIPTOR, TURN_Q6,
 };
+use ogm_core::lidar::source::{RangeSensor, ReadError};
 use ogm_core::{Angle, Beam, Range, ScanBuf};
 use proptest::prelude::*;
 

@@ -43,7 +43,8 @@ use host_sim::listen::{
 use host_sim::map_export::export_world;
 use host_sim::world::load::{DEFAULT_FREE_THRESH, DEFAULT_OCCUPIED_THRESH};
 use host_sim::world::probabilities_to_world;
-use ogm_core::wire::{HostMsg, RunConfig};
+use ogm_core::config::RunConfig;
+use ogm_core::wire::HostMsg;
 
 const SCANS: usize = 8;
 

@@ -1,5 +1,5 @@
 //! A noisy UART: the firmware in QEMU with 1 % of the bytes it receives corrupted (each XORed
-//! with a random non-zero byte; host frames sent three times, see `ogm_core::link`). Only the
+//! with a random non-zero byte; host frames sent three times, see `ogm_core::lidar::link`). Only the
 //! damaged LD06 packets and frames may be lost, and every loss must be counted in the stream's
 //! statistics; the streamed map must equal the host replay of the same bytes *and* a host replay
 //! of only the packets and frames that arrived intact; no reset, no panic. The LD06's own check

@@ -28,8 +28,8 @@ use host_sim::firmware::{
     firmware_world, print_report, run, run_config, FirmwareArgs, FIRMWARE_SIZES,
 };
 use host_sim::sim::{simulate, SimConfig};
+use ogm_core::config::Budget;
 use ogm_core::session::{Owned, Session};
-use ogm_core::wire::Budget;
 use ogm_tests::firmware_available;
 
 /// Counts this thread's heap allocations (libtest runs tests on several threads).
@@ -95,7 +95,7 @@ fn host_soak(total: usize) -> SoakReport {
         &FirmwareArgs {
             fixed_updates: Some(UPDATES),
             sampler: host_sim::firmware::SamplerArgs {
-                data: Some(ogm_core::gibbs::DataTerm::Hybrid),
+                data: Some(ogm_core::config::DataTerm::Hybrid),
                 ..Default::default()
             },
             ..args

@@ -4,7 +4,7 @@
 //! posterior the samplers sample.
 //!
 //! * **Variables** are the map's cells (row-major indices), labels 0 = free, 1 = occupied.
-//! * **Factors** are rays: ray `n` of the store is traced (Bresenham, [`ogm_core::ray::Ray`]) from
+//! * **Factors** are rays: ray `n` of the store is traced (Bresenham, [`ogm_core::map::ray::Ray`]) from
 //!   its pose's cell to the far end at maximum range, clipped to the map; its in-map cells, in ray
 //!   order, are the factor's neighbourhood `n(f)`. Its value depends only on the first occupied
 //!   cell (Eq. 28–31): `ψ_m` if the m-th cell is the first occupied one, `ψ_clear` if none is.
@@ -17,8 +17,8 @@
 //! `E(x) = −Σ_f ln ψ_f(x_f) − Σ_i ln p(x_i)`; [`Energy::nll`] is the first (data) term alone.
 
 use anyhow::{anyhow, ensure};
-use ogm_core::ray_store::{RayStore, StoredRay, StoredScan, NONE};
 use ogm_core::reference::ReferenceModel;
+use ogm_core::sampler::ray_store::{RayStore, StoredRay, StoredScan, NONE};
 use ogm_core::{GridGeometry, MapperConfig};
 use serde::{Deserialize, Serialize};
 

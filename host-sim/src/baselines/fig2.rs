@@ -16,11 +16,13 @@
 use std::path::Path;
 
 use anyhow::{anyhow, Context};
-use ogm_core::forward_model::ForwardModel;
-use ogm_core::gibbs::{block_words, Buffers, ConstantCellPrior, Gibbs, LocalRay, SamplerConfig};
-use ogm_core::mapper::marks_len;
-use ogm_core::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::map::mapper::marks_len;
 use ogm_core::reference::{Increments, ReferenceMapper, ReferenceModel};
+use ogm_core::sampler::forward_model::ForwardModel;
+use ogm_core::sampler::gibbs::{
+    block_words, Buffers, ConstantCellPrior, Gibbs, LocalRay, SamplerConfig,
+};
+use ogm_core::sampler::ray_store::{RayStore, StoredRay, StoredScan};
 use ogm_core::{Angle, Beam, GridGeometry, LogOdds, MapperConfig, Pose, Range};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
@@ -203,7 +205,13 @@ pub fn gibbs_l1(
         sample: vec![0u32; CELLS.div_ceil(32)],
         counts: vec![0u32; CELLS],
         local: vec![LocalRay::default(); 64],
-        blocks: vec![0u32; block_words(64, ogm_core::gibbs::SamplerConfig::default().block_grid)],
+        blocks: vec![
+            0u32;
+            block_words(
+                64,
+                ogm_core::sampler::gibbs::SamplerConfig::default().block_grid
+            )
+        ],
     };
     let mut g = Gibbs::<_, _, _, _, _, u32>::new(d.geometry, prior, fm, cfg, buf)
         .map_err(|e| anyhow!("sampler: {e}"))?;
@@ -324,7 +332,7 @@ pub fn run(out: &Path, seed: u64) -> anyhow::Result<()> {
             "prior_p_occupied": PRIOR,
             "traditional": "Haehnel inverse model l_free = -1.3863, l_occ = 1.3863, no clamp",
             "gibbs_l1": concat!(
-                "ogm_core::gibbs L = 1, ConstantCellPrior(0.5), p_rand_patch 0, no burn-in, ",
+                "ogm_core::sampler::gibbs L = 1, ConstantCellPrior(0.5), p_rand_patch 0, no burn-in, ",
                 "random start (gibbs_l1_from_traditional: started from the traditional map ",
                 "thresholded at 0.5)"
             ),

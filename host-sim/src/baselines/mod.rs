@@ -13,7 +13,7 @@
 //! the pose's cell to the far end at maximum range) with `ogm_core::reference::ReferenceModel` —
 //! the forward model of the f64 reference Gibbs sampler (Gaussian σ = 3 cells with 1 % outliers by
 //! default, or Dhiman's piecewise-constant model) — and a constant cell prior
-//! (`ogm_core::prior::occupancy_prior()`, p ≈ 0.23, the L = 1 sampler's; or none, as in Dhiman).
+//! (`ogm_core::sampler::prior::occupancy_prior()`, p ≈ 0.23, the L = 1 sampler's; or none, as in Dhiman).
 //!
 //! **Energy** (reported for every method in `eval-sim`): `E(x) = −Σ_rays ln p(z | x) −
 //! Σ_cells ln p(x_i)` of the method's map: the MAP labels for `bp_max` and `dd`, and the marginals
@@ -144,7 +144,7 @@ impl Default for BaselineConfig {
                 sigma_cells: 3.0,
                 outlier_weight: 0.01,
             },
-            prior_p_occupied: Some(ogm_core::prior::occupancy_prior().p_occupied()),
+            prior_p_occupied: Some(ogm_core::sampler::prior::occupancy_prior().p_occupied()),
             init_threshold: -1,
             mh: mh::MhConfig::default(),
             bp: bp::BpConfig::default(),

@@ -1,4 +1,4 @@
-//! Pruning and emitting the generated tables (`ogm-core/src/prior_table.rs`, `l25_table.rs`).
+//! Pruning and emitting the generated tables (`ogm-core/src/sampler/prior/table.rs`, `l25_table.rs`).
 //!
 //! The output is a pure function of the training result and [`PruneParams`]: no timestamps,
 //! no host paths, sorted everywhere, log-priors rounded by the same function the target uses
@@ -7,8 +7,8 @@
 use std::fmt::Write as _;
 
 use anyhow::{bail, Result};
-use ogm_core::patch::CONFIG_MASK;
-use ogm_core::prior::{log_prior_of_probability, LOG_ZERO};
+use ogm_core::sampler::patch::CONFIG_MASK;
+use ogm_core::sampler::prior::{log_prior_of_probability, LOG_ZERO};
 
 use super::train::Training;
 use super::{Distributions, CELL_SIZE_M, HOUSEEXPO_M_PER_PX, MIN_OCCUPIED_FRACTION};
@@ -274,14 +274,14 @@ fn log_str(v: i16) -> String {
     }
 }
 
-/// The text of `ogm-core/src/prior_table.rs`.
+/// The text of `ogm-core/src/sampler/prior/table.rs`.
 pub fn emit_core_table(t: &Training, params: &PruneParams) -> Result<String> {
     let d = t.l25.distributions();
     let tables = CoreTables::build(&d, params);
     emit_core_tables(t, &tables)
 }
 
-/// The text of `ogm-core/src/prior_table.rs` for already pruned tables.
+/// The text of `ogm-core/src/sampler/prior/table.rs` for already pruned tables.
 pub fn emit_core_tables(t: &Training, tables: &CoreTables) -> Result<String> {
     let n_cand = tables.candidates();
     if n_cand > usize::from(u16::MAX) || tables.borders.len() > usize::from(u16::MAX) {
@@ -290,19 +290,19 @@ pub fn emit_core_tables(t: &Training, tables: &CoreTables) -> Result<String> {
     let p = &tables.params;
     let mut out = header(
         t,
-        "Data-driven patch prior (Merali & Barfoot, §III-A/B) for ogm_core::prior: 3x3 patch given its \
-         16-cell border, unconditioned 3x3, 1 cell given its 8 neighbours, p(m_k). Layouts: ogm_core::patch.",
+        "Data-driven patch prior (Merali & Barfoot, §III-A/B) for ogm_core::sampler::prior: 3x3 patch given its \
+         16-cell border, unconditioned 3x3, 1 cell given its 8 neighbours, p(m_k). Layouts: ogm_core::sampler::patch.",
     );
     let _ = writeln!(out, "//");
     let _ = writeln!(out, "// Pruning: borders seen < {} times (x8 counting) dropped -> fallback ({} of {} borders kept,", p.min_border_count, tables.borders.len(), tables.borders_seen);
     let _ = writeln!(out, "//   {} ppm of windows); candidates with p(config|border) < {} ppm dropped and at most {} per border", ppm(tables.dropped_border_mass, tables.total), p.candidate_floor_ppm, p.k_max);
     let _ = writeln!(out, "//   ({} ppm of windows); kept candidates renormalised per border. {} candidates, {} bytes of flash.", ppm(tables.dropped_candidate_mass, tables.total), n_cand, tables.flash_bytes());
-    let _ = writeln!(out, "// Log-priors: ln p in units of ln(4)/1024 nats, rounded (ogm_core::prior::log_prior_of_probability).");
+    let _ = writeln!(out, "// Log-priors: ln p in units of ln(4)/1024 nats, rounded (ogm_core::sampler::prior::log_prior_of_probability).");
     let _ = writeln!(out);
-    let _ = writeln!(out, "use crate::prior::TableInfo;");
+    let _ = writeln!(out, "use super::TableInfo;");
     let _ = writeln!(out);
     let _ = writeln!(out, "/// Probability zero.");
-    let _ = writeln!(out, "const Z: i16 = crate::prior::LOG_ZERO;");
+    let _ = writeln!(out, "const Z: i16 = super::LOG_ZERO;");
     let _ = writeln!(out);
     let _ = writeln!(out, "/// Cap on candidates per border.");
     let _ = writeln!(out, "pub(crate) const K_MAX: usize = {};", p.k_max);

@@ -7,11 +7,11 @@
 //!   which every other distribution is derived ([`Distributions`]); the committed copy
 //!   ([`L25::committed`], generated into `l25_table.rs`) is the unconditioned 5×5 prior of the
 //!   host-side L = 25 sampler ([`crate::l25`], eval-sim's `gibbs_l25`);
-//! * [`codegen`] — prunes and emits `ogm-core/src/prior_table.rs` and `l25_table.rs`,
+//! * [`codegen`] — prunes and emits `ogm-core/src/sampler/prior/table.rs` and `l25_table.rs`,
 //!   byte-for-byte reproducibly;
 //! * [`stats`] — `prior-stats`: the figures of §III-A/B next to the paper's.
 //!
-//! Bit layouts are those of [`ogm_core::patch`]. See `docs/prior.md` for the choices (cell
+//! Bit layouts are those of [`ogm_core::sampler::patch`]. See `docs/prior.md` for the choices (cell
 //! size, HouseExpo scale, skipped maps, pruning, fallback).
 
 pub mod codegen;
@@ -25,7 +25,9 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use ogm_core::patch::{border_of, canonical_window, neighbours_of, patch_of, Dihedral, CONFIGS};
+use ogm_core::sampler::patch::{
+    border_of, canonical_window, neighbours_of, patch_of, Dihedral, CONFIGS,
+};
 
 pub use codegen::{CoreTables, PruneParams};
 pub use stats::{prior_stats, PriorStats};
@@ -50,9 +52,9 @@ pub fn default_corpus_dir() -> PathBuf {
     manifest_relative("../../shared/data/maps/train")
 }
 
-/// The generated ogm-core table: `<project>/ogm-core/src/prior_table.rs`.
+/// The generated ogm-core table: `<project>/ogm-core/src/sampler/prior/table.rs`.
 pub fn default_core_table_path() -> PathBuf {
-    manifest_relative("../ogm-core/src/prior_table.rs")
+    manifest_relative("../ogm-core/src/sampler/prior/table.rs")
 }
 
 /// The generated host-side L = 25 table: `<project>/host-sim/src/prior/l25_table.rs`.
@@ -75,7 +77,7 @@ pub struct Orbit {
     pub count: u64,
 }
 
-/// The symmetrised histogram of 5×5 windows (bit layout of [`ogm_core::patch`]).
+/// The symmetrised histogram of 5×5 windows (bit layout of [`ogm_core::sampler::patch`]).
 ///
 /// Each raw window `w` counted once contributes one count to each of its 8 images `T(w)`, so
 /// the histogram is invariant under the transforms and its total is 8 × the raw window count.
@@ -224,13 +226,13 @@ impl Distributions {
             l25_counts_desc.push(n);
             if w == 0 {
                 free_occ.0 = n;
-            } else if w == ogm_core::patch::WINDOW_MASK {
+            } else if w == ogm_core::sampler::patch::WINDOW_MASK {
                 free_occ.1 = n;
             }
             if let Some(c) = l9.get_mut(usize::from(p)) {
                 *c += n;
             }
-            let centre = usize::from(ogm_core::patch::centre_of(p));
+            let centre = usize::from(ogm_core::sampler::patch::centre_of(p));
             if let Some(c) = l1
                 .get_mut(usize::from(neighbours_of(p)))
                 .and_then(|a| a.get_mut(centre))

@@ -2,12 +2,12 @@
 //!
 //! Corpus figures are computed exactly from the committed L = 25 histogram
 //! ([`super::L25::committed`], before any pruning); table figures from the compiled
-//! `ogm_core::prior` table (after pruning). JSON field names are stable.
+//! `ogm_core::sampler::prior` table (after pruning). JSON field names are stable.
 
 use std::fmt::Write as _;
 
-use ogm_core::patch::{CONFIG_FREE, CONFIG_OCCUPIED};
-use ogm_core::prior::{self, TABLE_INFO};
+use ogm_core::sampler::patch::{CONFIG_FREE, CONFIG_OCCUPIED};
+use ogm_core::sampler::prior::{self, TABLE_INFO};
 use serde::Serialize;
 
 use super::{Distributions, CELL_SIZE_M, HOUSEEXPO_M_PER_PX, L25};
@@ -154,7 +154,7 @@ pub struct CorpusFigures {
     pub windows_x8: u64,
 }
 
-/// The compiled `ogm_core::prior` table (after pruning).
+/// The compiled `ogm_core::sampler::prior` table (after pruning).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TableFigures {
     /// Bytes of flash taken by the prior's data arrays.

@@ -22,7 +22,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 use anyhow::{bail, Context, Result};
-use ogm_core::patch::WINDOW_MASK;
+use ogm_core::sampler::patch::WINDOW_MASK;
 use sha2::{Digest, Sha256};
 
 use super::{CELL_SIZE_M, HOUSEEXPO_M_PER_PX, L25, MIN_OCCUPIED_FRACTION};
@@ -200,7 +200,7 @@ pub fn load_canonical(map: &CorpusMap) -> Result<World> {
 /// Raw (not yet symmetrised) counts of the 5×5 windows of some maps.
 #[derive(Clone, Debug, Default)]
 pub struct WindowCounts {
-    /// Count per window (layout of [`ogm_core::patch`]).
+    /// Count per window (layout of [`ogm_core::sampler::patch`]).
     pub counts: HashMap<u32, u64, BuildWindowHasher>,
     /// Windows counted.
     pub windows: u64,
@@ -428,7 +428,7 @@ pub fn default_threads() -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ogm_core::patch::with_window_cell;
+    use ogm_core::sampler::patch::with_window_cell;
 
     fn world(rows: &[&str]) -> World {
         // rows given top first, like an image

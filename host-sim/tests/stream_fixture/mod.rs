@@ -1,7 +1,8 @@
 //! A robot's map stream built by hand, shared by the tests that read one back (`export --stream`,
 //! `listen --mcap`): a 32 × 32 map of 16 × 16 tiles, 100 mm cells, origin (−1 000, 500) mm.
 
-use ogm_core::wire::{self, Budget, DeviceMsg, Hello, RunConfig};
+use ogm_core::config::{Budget, RunConfig};
+use ogm_core::wire::{self, DeviceMsg, Hello};
 
 /// Map width and height, cells.
 pub const W: usize = 32;

@@ -1,17 +1,17 @@
 //! An f64 reference of the Gibbs sampler's conditional (Eq. 1), written for obviousness, not
 //! speed: every update looks at *every* stored ray, recomputes first occupied cells from scratch
 //! for each candidate, evaluates the sensor model with `libm` in f64 and draws with f64 weights.
-//! It shares only the discrete model with [`crate::gibbs::Gibbs`]: the ray store's Bresenham
+//! It shares only the discrete model with [`crate::sampler::gibbs::Gibbs`]: the ray store's Bresenham
 //! rays, the patch bit layout, and the [`PatchPrior`]. Tests compare the two samplers' marginals.
 
 use rand_core::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::error::{Error, Result};
-use crate::fixed::{LogOdds, LSB_NATS};
-use crate::geometry::{CellCoord, GridGeometry};
-use crate::gibbs::{PatchCandidate, PatchPrior, MAX_CANDIDATES};
-use crate::ray_store::{RayStore, StoredRay, StoredScan, NONE};
+use crate::sampler::gibbs::{PatchCandidate, PatchPrior, MAX_CANDIDATES};
+use crate::sampler::ray_store::{RayStore, StoredRay, StoredScan, NONE};
+use crate::types::fixed::{LogOdds, LSB_NATS};
+use crate::types::geometry::{CellCoord, GridGeometry};
 
 /// The forward model in f64.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -193,9 +193,9 @@ impl<'a, P: PatchPrior> ReferenceGibbs<'a, P> {
             }
         }
         if size == 3 {
-            crate::patch::border_of(win)
+            crate::sampler::patch::border_of(win)
         } else {
-            u16::from(crate::patch::neighbours_of(win as u16))
+            u16::from(crate::sampler::patch::neighbours_of(win as u16))
         }
     }
 

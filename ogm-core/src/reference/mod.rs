@@ -1,6 +1,6 @@
 //! f64 reference implementations the fixed-point code is tested (and benchmarked) against.
 //!
-//! [`ReferenceMapper`] classifies scans with exactly the same code as [`crate::mapper::Mapper`]
+//! [`ReferenceMapper`] classifies scans with exactly the same code as [`crate::map::mapper::Mapper`]
 //! and differs only in arithmetic: f64 log-odds, f64 increments, the clamp bounds as f64. With
 //! the default Hähnel model the fixed-point increments are exact (±1024 LSB = ±ln 4), so the two
 //! agree to f64 rounding after any number of scans. For other models, compare against a
@@ -9,10 +9,10 @@
 //! cell at most once).
 
 use crate::error::{Error, Result};
-use crate::fixed::probability_of_nats;
-use crate::geometry::{GridGeometry, Pose};
-use crate::hal::Beam;
-use crate::mapper::{classify_scan, marks_len, CellUpdate, MapperConfig, ScanStats};
+use crate::map::mapper::{classify_scan, marks_len, CellUpdate, MapperConfig, ScanStats};
+use crate::types::fixed::probability_of_nats;
+use crate::types::geometry::{GridGeometry, Pose};
+use crate::types::scan::Beam;
 
 /// Increments (nats) and clamp (nats) a reference mapper applies.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -1,0 +1,135 @@
+//! How a session reads the run's settings: the mapper's, the forward model's and the sampler's
+//! configuration, each derived from the one [`RunConfig`].
+
+use crate::config::RunConfig;
+use crate::error::Result;
+use crate::map::mapper::MapperConfig;
+use crate::map::sensor_model::InverseSensorModel;
+use crate::sampler::forward_model::ForwardModel;
+use crate::sampler::gibbs::SamplerConfig;
+
+impl RunConfig {
+    /// The mapper settings: Hähnel's ray model with the free update scaled by
+    /// `free_update_q8` and, with `face_band`, the band of σ = `sigma_milli_cells`; default
+    /// clamp. [`crate::Error::InvalidModel`] if the scale is out of range or σ rounds to 0 mm.
+    pub fn mapper_config(&self) -> Result<MapperConfig> {
+        // Integer only: the firmware builds it (`with_free_scale` may take f64 arithmetic).
+        let model = InverseSensorModel::hahnel_free_scaled(self.free_update_q8)?;
+        let model = if self.face_band {
+            let sigma_mm = u64::from(self.sigma_milli_cells) * u64::from(self.cell_mm) / 1000;
+            model.with_face_band(u32::try_from(sigma_mm).unwrap_or(u32::MAX))?
+        } else {
+            model
+        };
+        Ok(MapperConfig {
+            max_range_mm: self.max_range_mm,
+            min_range_mm: self.min_range_mm,
+            model,
+            ..MapperConfig::new(self.max_range_mm)
+        })
+    }
+
+    /// The forward model (maximum range in cells = `max_range_mm / cell_mm`).
+    pub fn forward_model(&self) -> Result<ForwardModel> {
+        ForwardModel::gaussian(
+            f64::from(self.sigma_milli_cells) / 1000.0,
+            f64::from(self.outlier_ppm) / 1e6,
+            f64::from(self.max_range_mm) / f64::from(self.cell_mm.max(1)),
+        )
+    }
+
+    /// The sampler settings. The initial sample uses [`SamplerConfig`]'s default threshold
+    /// (−1 LSB: never-observed cells start occupied); online, cells are seeded from their
+    /// log-odds when first observed ([`crate::session::pipeline::insert_and_seed`]).
+    pub fn sampler_config(&self) -> SamplerConfig {
+        SamplerConfig {
+            // f32 arithmetic: the Cortex-M4F has it in hardware (f64 would be ~2.6 KiB of
+            // software floating point in flash). Exact for every ppm below 2^24.
+            p_rand_patch: self.p_rand_patch_ppm as f32 / 1e6,
+            burn_in_sweeps: self.burn_in_sweeps,
+            max_candidates: self.max_candidates,
+            init_threshold: SamplerConfig::default().init_threshold,
+            tile_shift: self.sampler_tile_shift,
+            visit_sweeps: self.visit_sweeps,
+            seed: self.seed,
+            block_grid: crate::sampler::gibbs::DEFAULT_BLOCK_GRID,
+            data: self.data,
+            evidence_gain_q8: self.evidence_gain_q8,
+            evidence_free_q8: self.evidence_free_q8,
+            data_candidate: self.data_candidate,
+            floor_log_prior: crate::sampler::gibbs::FLOOR_LOG_PRIOR,
+            estimator: self.estimator,
+            hot_share: self.hot_share,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Budget;
+    use crate::LogOdds;
+
+    #[test]
+    fn config_builds_the_models() {
+        let c = RunConfig::paper((-6400, -6400), 3750, 7, Budget::Fixed { updates: 100 });
+        let g = c.geometry(256, 256).unwrap();
+        assert_eq!(g.origin_mm(), (-6400, -6400));
+        assert_eq!(c.mapper_config(), Ok(MapperConfig::new(3750)));
+        let robot = RunConfig::robot((0, 0), 3750, 7, Budget::Fixed { updates: 100 });
+        assert_eq!(
+            robot,
+            RunConfig::robot_at_paper_sigma((0, 0), 3750, 7, Budget::Fixed { updates: 100 })
+        );
+        // σ = 3 cells of 50 mm: the face band, the evidence as it is.
+        assert!(robot.face_band);
+        assert_eq!(
+            (
+                robot.free_update_q8,
+                robot.evidence_free_q8,
+                robot.evidence_gain_q8
+            ),
+            (256, 256, 256)
+        );
+        let m = robot.mapper_config().unwrap();
+        assert_eq!(
+            m.model.kind(),
+            crate::map::sensor_model::InverseModelKind::FaceBand { sigma_mm: 150 }
+        );
+        assert_eq!(m.model.occ_increment(), LogOdds(1024));
+        // A precise sensor (σ = 0.67 cells): no band; the free update split, the 1/σ gain.
+        let precise = robot.with_noise_matched(0.67);
+        assert!(!precise.face_band);
+        assert_eq!(precise.sigma_milli_cells, 670);
+        assert_eq!(
+            (precise.free_update_q8, precise.evidence_free_q8),
+            (256, 256)
+        );
+        assert_eq!(
+            precise.evidence_gain_q8,
+            crate::config::noise::noise_matched_gain_q8(0.67)
+        );
+        // σ = 1.5 cells: the band.
+        assert!(robot.with_noise_matched(1.5).face_band);
+        let split = RunConfig {
+            face_band: false,
+            free_update_q8: 141,
+            ..robot
+        };
+        let m = split.mapper_config().unwrap();
+        assert_eq!(m.model.free_increment(), LogOdds(-564));
+        for bad in [0, 257] {
+            let c = RunConfig {
+                free_update_q8: bad,
+                ..robot
+            };
+            assert_eq!(c.mapper_config(), Err(crate::Error::InvalidModel));
+        }
+        assert_eq!(
+            c.forward_model().unwrap(),
+            ForwardModel::gaussian(3.0, 0.01, 75.0).unwrap()
+        );
+        assert_eq!(c.sampler_config().seed, 7);
+        assert_eq!(c.sampler_config().p_rand_patch, 0.001);
+    }
+}
