@@ -11,8 +11,8 @@
 //! * [`wire`] — the host link's frames and messages and the map stream's tile codec;
 //! * [`map`] — online log-odds mapping: grid, rays, inverse sensor models, the mapper;
 //! * [`sampler`] — the patch prior, forward model, ray store and the patch Gibbs sampler;
-//! * [`lidar`] — LD06 and RPLIDAR parsers, the robot's receive link, turns and pose tracking,
-//!   and the traits through which scans and poses enter;
+//! * [`lidar`] — LD06 and RPLIDAR parsers, the robot's receive link, turns and pose tracking:
+//!   the one way scans and poses enter (bytes in, sans-IO; [`lidar::source`] says why);
 //! * [`session`] — the engine: mapper, ray store and sampler behind `insert` / `step`;
 //! * [`reference`] — f64 reference implementations for tests (feature `reference`).
 //!
@@ -58,10 +58,11 @@ pub mod reference;
 
 pub use config::RunConfig;
 pub use error::{Error, Result};
+// TODO(issue 36): remove after host-sim migrates (see `lidar::source`).
 pub use lidar::source::{PoseSource, RangeSensor};
 pub use map::grid::LogOddsGrid;
 pub use map::mapper::{Mapper, MapperConfig, ScanStats};
-pub use session::{Session, SessionError, Sizes};
+pub use session::{Inserted, Session, SessionError, Sizes};
 pub use types::angle::Angle;
 pub use types::fixed::{Clamp, LogOdds};
 pub use types::geometry::{CellCoord, GridGeometry, Pose};

@@ -1,7 +1,30 @@
-//! The traits through which scans and poses reach the engine: [`RangeSensor`] (complete scans
-//! from a byte source: [`crate::lidar::ld06::Ld06Reader`] and
-//! [`crate::lidar::rplidar::RplidarReader`] over any `embedded_io::Read`, the simulator's
-//! synthetic lidar, a replayed laser log) and [`PoseSource`] (the pose of each scan).
+//! Blocking scan and pose traits, [`RangeSensor`] and [`PoseSource`]: *not* the way scans
+//! reach the engine. They stay until host-sim's evaluation path (its synthetic lidar, a
+//! replayed laser log, `session::pipeline::map_next_scan`) and the blocking readers
+//! ([`crate::lidar::ld06::Ld06Reader`], [`crate::lidar::rplidar::RplidarReader`], host-side
+//! conveniences over `embedded_io::Read`) move off them; nothing in ogm-core's engine or the
+//! firmware depends on them.
+//!
+//! # The one seam: bytes, not scans
+//!
+//! Scans and poses enter the engine one way, the sans-IO path the robot runs: lidar bytes →
+//! [`crate::lidar::ld06::Ld06Parser`] or [`crate::lidar::rplidar::RplidarParser`] (byte by
+//! byte, whatever the UART delivered) → [`crate::lidar::turn::Turns`] (packets placed by the
+//! timestamped poses of [`crate::wire::HostMsg::Pose`] from the link, which
+//! [`crate::lidar::link::LinkRx`] decodes from the other UART) → one
+//! [`crate::session::Session::insert`] per completed turn. The simulator feeds the firmware
+//! through that same seam: `host-sim firmware --robot` sends it LD06 bytes and pose frames, and
+//! runs the firmware's own application on them.
+//!
+//! A blocking `read_scan` does not fit the robot: its one loop interleaves two UARTs (the
+//! lidar's, ~4 500 points/s, and the host link with the poses those points need), reads a
+//! UART only while the turn queue has room for what it may complete, and must go on reading
+//! the link while a turn is assembled — a call that blocks until a whole turn has arrived
+//! would stall the poses that turn waits for. A sans-IO parser takes whatever bytes arrived
+//! and never waits, so the board and the host drive the identical code with the identical
+//! bytes (the replay is bit-exact).
+// TODO(issue 36): remove the traits after host-sim migrates (and with them `ReadError`, the
+// readers' `RangeSensor` impls and `session::pipeline`).
 
 use crate::types::geometry::Pose;
 use crate::types::scan::ScanBuf;

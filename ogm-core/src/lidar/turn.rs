@@ -819,7 +819,9 @@ mod tests {
                 y_mm: mount.y_mm,
                 heading: mount.yaw,
             },
-            ..RunConfig::paper((0, 0), 8000, 1, crate::config::Budget::Fixed { updates: 0 })
+            ..RunConfig::PAPER
+                .with_max_range_mm(8000)
+                .with_budget(crate::config::Budget::Fixed { updates: 0 })
         };
         let (turns, per_turn) = (4u64, 30u64);
         let mut ld = Turns::configured(&RunConfig {

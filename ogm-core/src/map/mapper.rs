@@ -1567,7 +1567,7 @@ where
     }
 
     /// [`Mapper::insert_scan`] that tells `listener` what it changes (see [`UpdateListener`]).
-    /// The online sampler listens this way ([`crate::session::pipeline::insert_and_seed`]).
+    /// The online sampler listens this way ([`crate::session::Session::insert`]).
     #[inline]
     pub fn insert_scan_into<L: UpdateListener>(
         &mut self,

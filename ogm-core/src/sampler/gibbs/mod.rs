@@ -923,7 +923,7 @@ where
 
     /// Sets cell `index` of the current sample — for seeding cells the moment the mapper first
     /// observes them while the sampler runs online (see
-    /// [`crate::session::pipeline::insert_and_seed`]). The first-occupied caches of rays crossing the cell
+    /// [`crate::session::Session::insert`]). The first-occupied caches of rays crossing the cell
     /// are stale afterwards: call [`Gibbs::refresh_rays`] (once per scan is enough).
     pub fn seed(&mut self, index: usize, occupied: bool) {
         self.set_occupied(index, occupied);
@@ -966,7 +966,7 @@ where
     }
 
     /// Tells the sampler that a scan changed cell `index`'s log-odds from `before` to `now`
-    /// (what [`crate::session::pipeline::insert_and_seed`] does for every cell it updates): marks its
+    /// (what [`crate::session::Session::insert`] does for every cell it updates): marks its
     /// tile for a visit ([`SamplerConfig::hot_share`]) and, with [`Estimator::Average`]'s
     /// `reset_on_change`, restarts its estimate at `now`'s probability if the cell was
     /// unobserved (`before` = 0) or the sign of its evidence flipped. Evidence that only grew
@@ -1310,7 +1310,7 @@ where
 
     /// Marks the first-occupied caches of the rays in `range` stale, to be recomputed from the
     /// current sample when a tile visit next gathers them, and ends the current visit. O(rays)
-    /// writes and no ray walks: what [`crate::session::pipeline::insert_and_seed`] does after seeding, so
+    /// writes and no ray walks: what [`crate::session::Session::insert`] does after seeding, so
     /// a scan's ingest stays cheap and the walks happen inside the sampler's bounded steps.
     pub fn invalidate_rays<S, R>(
         &mut self,
