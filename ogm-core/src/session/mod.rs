@@ -4,7 +4,7 @@
 //! ```
 //! # #[cfg(feature = "alloc")] {
 //! use ogm_core::session::{Owned, Session, Sizes};
-//! use ogm_core::wire::{Budget, RunConfig};
+//! use ogm_core::config::{Budget, RunConfig};
 //! use ogm_core::{Angle, Beam, Pose, Range};
 //!
 //! let config = RunConfig::robot((-3200, -3200), 6000, 1, Budget::Fixed { updates: 500 });
