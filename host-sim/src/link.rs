@@ -539,9 +539,9 @@ mod tests {
                 Step::Scan {
                     seq, pose, beams, ..
                 } => got.push((seq, pose, beams.to_vec())),
-                Step::Config(c) => config = Some(c),
-                Step::Finish => finished = true,
-                Step::Idle { .. } | Step::Pose { .. } | Step::Error(_) => {}
+                Step::Host(HostMsg::Config(c)) => config = Some(c),
+                Step::Host(HostMsg::Finish) => finished = true,
+                Step::Host(_) | Step::Error(_) => {}
             });
         }
         assert!(finished);

@@ -3,6 +3,7 @@
 //! frames on one UART), lidar turns assembled and deskewed with poses that arrive on their own,
 //! and the [`source`] traits through which a scan and its pose reach the session.
 
+pub mod encode;
 pub mod ld06;
 pub mod link;
 pub mod pose_track;
