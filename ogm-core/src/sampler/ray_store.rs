@@ -164,10 +164,7 @@ where
         }
         // The sampler's short-ray arithmetic needs rays of at most MAX_STEPS steps.
         let reach = max_range_mm.div_ceil(geometry.cell_mm());
-        if max_range_mm == 0
-            || min_range_mm >= max_range_mm
-            || reach >= MAX_STEPS - 2
-        {
+        if max_range_mm == 0 || min_range_mm >= max_range_mm || reach >= MAX_STEPS - 2 {
             return Err(Error::InvalidModel);
         }
         Ok(RayStore {
