@@ -204,11 +204,11 @@ where
     /// candidates are the top-k of `configs` plus, with [`SamplerConfig::data_candidate`], the
     /// evidence's own configuration at the floor log-prior; weights are log-prior + evidence.
     /// Returns the new configuration (and updates the estimates), and whether it was the only
-    /// candidate (the caller counts those in [`SamplerStats::single_candidate`]).
+    /// candidate (the caller counts those in [`SamplerReport::single_candidate`]).
     ///
     /// [`DataTerm::Evidence`]: crate::config::DataTerm::Evidence
     /// [`SamplerConfig::data_candidate`]: super::SamplerConfig::data_candidate
-    /// [`SamplerStats::single_candidate`]: super::SamplerStats::single_candidate
+    /// [`SamplerReport::single_candidate`]: crate::wire::SamplerReport::single_candidate
     #[allow(clippy::too_many_arguments)]
     pub(super) fn evidence_update(
         &mut self,

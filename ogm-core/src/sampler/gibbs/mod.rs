@@ -22,7 +22,7 @@
 //!   tile for a while. Every update is still an exact Gibbs step (all rays crossing the patch are
 //!   in the list), so the posterior is invariant; only the order of updates differs from a
 //!   uniform random scan. Rays that do not fit the local list are counted in
-//!   [`SamplerStats::local_overflow`] (size the buffer so this stays zero).
+//!   [`SamplerReport::local_overflow`] (size the buffer so this stays zero).
 //! * **First occupied cells** are cached per ray ([`crate::sampler::ray_store::StoredRay`]); a ray whose
 //!   first occupied cell lies before the patch is unaffected by it and skipped in O(1); otherwise
 //!   the cells before the patch are known free, the patch's cells are taken in ray order, and the
@@ -66,6 +66,7 @@ use crate::sampler::forward_model::ForwardModel;
 use crate::sampler::ray_store::{RayStore, StoredRay, StoredScan};
 use crate::types::fixed::LogOdds;
 use crate::types::geometry::{CellCoord, GridGeometry};
+use crate::wire::SamplerReport;
 pub use count::{average_byte, AverageShift, Count};
 use local::BlockGrid;
 pub use local::{block_words, LocalRay, DEFAULT_BLOCK_GRID, MAX_BLOCK_GRID};
@@ -113,7 +114,12 @@ pub struct Gibbs<P, B, C, L, K, N = u8> {
     cursor: usize,
     samples: u32,
     halving: bool,
-    stats: SamplerStats,
+    /// The counters the wire reports (`samples` and `store` stay zero, see [`Gibbs::stats`]).
+    stats: SamplerReport,
+    /// Local rays examined for a patch (the block index's candidates), over all updates.
+    rays_examined: u64,
+    /// Rays gathered into local lists, over all visits.
+    rays_gathered: u64,
     // Tiling of the patch-centre range, and the tiles whose evidence changed.
     tiles_x: u32,
     tiles_y: u32,
@@ -252,7 +258,9 @@ where
             cursor: 0,
             samples: 0,
             halving: false,
-            stats: SamplerStats::default(),
+            stats: SamplerReport::default(),
+            rays_examined: 0,
+            rays_gathered: 0,
             tiles_x,
             tiles_y,
             hot: HotTiles::new(tiles_x, tiles_y),
@@ -278,9 +286,23 @@ where
         &self.geometry
     }
 
-    /// Counters.
-    pub fn stats(&self) -> SamplerStats {
+    /// The counters of what the updates did, as the wire reports them. `samples` and `store`
+    /// stay zero: [`crate::Session::sampler_report`] fills them in from [`Gibbs::samples`] and
+    /// [`RayStore::stats`].
+    pub fn stats(&self) -> SamplerReport {
         self.stats
+    }
+
+    /// Local rays examined for a patch (the block index's candidates), over all updates: a
+    /// diagnostic the wire does not carry.
+    pub fn rays_examined(&self) -> u64 {
+        self.rays_examined
+    }
+
+    /// Rays gathered into local lists, over all tile visits: a diagnostic the wire does not
+    /// carry.
+    pub fn rays_gathered(&self) -> u64 {
+        self.rays_gathered
     }
 
     /// The settings.
@@ -547,29 +569,3 @@ impl Default for SamplerConfig {
 /// tenth of the prior table's 1 % pruning threshold. One cell's clamped evidence (5 ln 4 =
 /// 6.9 nats) outweighs it; one observation (ln 4) does not.
 pub const FLOOR_LOG_PRIOR: i16 = -5102;
-
-/// Counters.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct SamplerStats {
-    /// Patch updates done.
-    pub updates: u64,
-    /// Of which random configurations (`p_randPatch`).
-    pub random_patches: u64,
-    /// Updates that had a single candidate (no likelihood needed).
-    pub single_candidate: u64,
-    /// Updates that changed the patch.
-    pub changed: u64,
-    /// Ray evaluations (ray × patch) that needed the likelihood.
-    pub rays_evaluated: u64,
-    /// Local rays examined for a patch (the block index's candidates).
-    pub rays_examined: u64,
-    /// Tile visits started.
-    pub tile_visits: u64,
-    /// Rays gathered into local lists, over all visits.
-    pub rays_gathered: u64,
-    /// Rays that crossed a tile but did not fit the local list.
-    pub local_overflow: u64,
-    /// Completed sweeps.
-    pub sweeps: u32,
-}

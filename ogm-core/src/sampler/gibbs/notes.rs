@@ -456,6 +456,10 @@ mod tests {
                 by_word.step(&mut st_w, &map, 300);
                 by_cell.step(&mut st_c, &map, 300);
                 prop_assert_eq!(by_word.stats(), by_cell.stats());
+                prop_assert_eq!(
+                    (by_word.rays_examined(), by_word.rays_gathered()),
+                    (by_cell.rays_examined(), by_cell.rays_gathered())
+                );
             }
         }
     }

@@ -191,7 +191,7 @@ where
                 }
             }
         }
-        self.stats.rays_gathered += self.n_local as u64;
+        self.rays_gathered += self.n_local as u64;
         // Rays added or invalidated since they were last used get their first occupied cell
         // now, from the current sample (see `invalidate_rays`).
         let local = self.buf.local.as_ref();
@@ -269,7 +269,7 @@ where
             }
         });
         self.stats.rays_evaluated += evaluated;
-        self.stats.rays_examined += examined;
+        self.rays_examined += examined;
     }
 
     /// How `lr` crosses the patch at `centre`, if the patch can change its first occupied cell.

@@ -14,6 +14,7 @@ use crate::config::DataTerm;
 use crate::sampler::ray_store::{RayStore, StoredRay, StoredScan};
 use crate::types::fixed::LogOdds;
 use crate::types::geometry::CellCoord;
+use crate::wire::StoreReport;
 
 /// 2^(−i/512) in Q16 for i in 0..512: the weight of a log-odds difference of i LSB (one LSB is
 /// ln 2 / 512, so `exp(−d·LSB) = 2^(−d/512)` exactly). A `static`, like every lookup table in
@@ -98,7 +99,7 @@ fn weights_q16(w: &[i32], q: &mut [u32]) -> u32 {
 
 /// [`DataTerm::Hybrid`]'s evidence gain: `gain_q8` times the share of the beams offered to the
 /// store that it no longer holds (decimated on arrival or thinned since).
-fn hybrid_gain(gain_q8: u16, s: &crate::sampler::ray_store::StoreStats) -> i32 {
+fn hybrid_gain(gain_q8: u16, s: &StoreReport) -> i32 {
     let dropped = u64::from(s.rays_decimated) + u64::from(s.rays_thinned);
     let offered = u64::from(s.rays_added) + u64::from(s.rays_decimated);
     if offered == 0 {
@@ -118,7 +119,7 @@ where
 {
     /// The evidence gains in effect: the configured ones, scaled by the dropped share of the
     /// beams for [`DataTerm::Hybrid`], none for [`DataTerm::Rays`].
-    pub(super) fn set_gains(&mut self, store: &crate::sampler::ray_store::StoreStats) {
+    pub(super) fn set_gains(&mut self, store: &StoreReport) {
         let g = i32::from(self.config.evidence_gain_q8);
         self.ev_gain = match self.config.data {
             DataTerm::Evidence => g,
