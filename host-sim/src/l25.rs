@@ -36,9 +36,9 @@ use std::sync::{Arc, OnceLock};
 
 use anyhow::ensure;
 use ogm_core::sampler::forward_model::ForwardModel;
-use ogm_core::sampler::gibbs::SamplerStats;
-use ogm_core::sampler::ray_store::{StoreStats, NONE};
+use ogm_core::sampler::ray_store::NONE;
 use ogm_core::types::fixed::LSB_NATS;
+use ogm_core::wire::{SamplerReport, StoreReport};
 use ogm_core::{GridGeometry, LogOdds, MapperConfig};
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -219,8 +219,8 @@ pub struct L25Sampler {
     burn_in: u32,
     sweep_len: u32,
     in_sweep: u32,
-    stats: SamplerStats,
-    store_stats: StoreStats,
+    stats: SamplerReport,
+    store_stats: StoreReport,
     // Scratch, reused by every update.
     stamp: Vec<u32>,
     slot: Vec<u32>,
@@ -327,7 +327,7 @@ impl L25Sampler {
             burn_in: cfg.burn_in,
             sweep_len: (geometry.len() as u32).div_ceil(CELLS).max(1),
             in_sweep: 0,
-            stats: SamplerStats::default(),
+            stats: SamplerReport::default(),
             store_stats: store.stats(),
             stamp: vec![0; n_rays],
             slot: vec![0; n_rays],
@@ -422,7 +422,6 @@ impl L25Sampler {
                 }
             }
         }
-        self.stats.rays_examined += self.crossings.len() as u64;
         for j in 0..self.crossings.len() {
             let mut x = self.crossings[j];
             x.cells[..x.n_cells].sort_unstable();
@@ -604,14 +603,14 @@ impl L25Sampler {
         &self.sample
     }
 
-    /// Counters (`single_candidate`, `tile_visits`, `rays_gathered` and `local_overflow` are
-    /// `ogm_core::sampler::gibbs`'s and stay 0).
-    pub fn stats(&self) -> SamplerStats {
+    /// Counters (`single_candidate`, `tile_visits` and `local_overflow` are
+    /// `ogm_core::sampler::gibbs`'s and stay 0, as do `samples` and `store`).
+    pub fn stats(&self) -> SamplerReport {
         self.stats
     }
 
     /// The ray store's counters.
-    pub fn store_stats(&self) -> StoreStats {
+    pub fn store_stats(&self) -> StoreReport {
         self.store_stats
     }
 

@@ -16,9 +16,10 @@ use ogm_core::map::sensor_model::InverseSensorModel;
 use ogm_core::sampler::forward_model::ForwardModel;
 use ogm_core::sampler::gibbs::{
     block_words, BorderPrior, Buffers, ConstantCellPrior, Gibbs, LocalRay, NeighbourPrior,
-    PatchPrior, SamplerConfig, SamplerStats, UnconditionedPrior,
+    PatchPrior, SamplerConfig, UnconditionedPrior,
 };
-use ogm_core::sampler::ray_store::{RayStore, StoreStats, StoredRay, StoredScan};
+use ogm_core::sampler::ray_store::{RayStore, StoredRay, StoredScan};
+use ogm_core::wire::{SamplerReport, StoreReport};
 use ogm_core::{GridGeometry, LogOdds, MapperConfig};
 use serde::{Deserialize, Serialize};
 
@@ -260,9 +261,9 @@ pub struct SamplerOutput {
     /// Marginal p(occupied) per cell.
     pub marginals: Vec<f64>,
     /// The sampler's counters.
-    pub stats: SamplerStats,
+    pub stats: SamplerReport,
     /// The ray store's counters.
-    pub store: StoreStats,
+    pub store: StoreReport,
     /// Wall-clock seconds of sampling (burn-in + sweeps), excluding setup.
     pub seconds: f64,
     /// Seconds per map sample (K/L patch updates).
@@ -301,8 +302,8 @@ pub struct Prepared {
 trait Sweeper {
     fn sweeps(&mut self, n: u32);
     fn marginals(&self) -> Vec<f64>;
-    fn stats(&self) -> SamplerStats;
-    fn store_stats(&self) -> StoreStats;
+    fn stats(&self) -> SamplerReport;
+    fn store_stats(&self) -> StoreReport;
 }
 
 pub(crate) type Store = RayStore<Vec<StoredScan>, Vec<StoredRay>>;
@@ -325,10 +326,10 @@ impl<P: PatchPrior, N: ogm_core::sampler::gibbs::Count> Sweeper for Session<P, N
             .map(|i| self.gibbs.marginal(i).map_or(0.5, f64::from))
             .collect()
     }
-    fn stats(&self) -> SamplerStats {
+    fn stats(&self) -> SamplerReport {
         self.gibbs.stats()
     }
-    fn store_stats(&self) -> StoreStats {
+    fn store_stats(&self) -> StoreReport {
         self.store.stats()
     }
 }
@@ -340,10 +341,10 @@ impl Sweeper for crate::l25::L25Sampler {
     fn marginals(&self) -> Vec<f64> {
         crate::l25::L25Sampler::marginals(self)
     }
-    fn stats(&self) -> SamplerStats {
+    fn stats(&self) -> SamplerReport {
         crate::l25::L25Sampler::stats(self)
     }
-    fn store_stats(&self) -> StoreStats {
+    fn store_stats(&self) -> StoreReport {
         crate::l25::L25Sampler::store_stats(self)
     }
 }
@@ -412,12 +413,12 @@ impl Prepared {
     }
 
     /// The sampler's counters.
-    pub fn stats(&self) -> SamplerStats {
+    pub fn stats(&self) -> SamplerReport {
         self.inner.stats()
     }
 
     /// The ray store's counters.
-    pub fn store_stats(&self) -> StoreStats {
+    pub fn store_stats(&self) -> StoreReport {
         self.inner.store_stats()
     }
 }
