@@ -221,6 +221,7 @@ pub(super) fn accuracy(
     acc.methods_near_mapped = near.iter().map(|(k, v)| (k.clone(), v.summary())).collect();
     Ok(acc)
 }
+
 /// What the online replay needs: the robot's input and the sampler work it reported.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Online<'a> {

@@ -111,6 +111,7 @@ pub struct FirmwareArgs {
     #[command(flatten)]
     pub sampler: SamplerArgs,
 }
+
 impl Default for FirmwareArgs {
     fn default() -> Self {
         FirmwareArgs {
@@ -145,6 +146,7 @@ impl Default for FirmwareArgs {
         }
     }
 }
+
 /// `--lidar`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum LidarArg {
@@ -154,6 +156,7 @@ pub enum LidarArg {
     /// Slamtec RPLIDAR A1, standard scan (2 000 samples/s).
     Rplidar,
 }
+
 impl LidarArg {
     /// The settings' lidar.
     pub fn model(self) -> ogm_core::config::LidarModel {
@@ -171,14 +174,16 @@ impl LidarArg {
         }
     }
 }
+
 /// `--pattern`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum PatternArg {
-    /// 10 Hz, 456 points ([`super::robot::ScanPattern::LD06`]).
+    /// 10 Hz, 456 points ([`crate::firmware::robot::ScanPattern::LD06`]).
     Ld06,
-    /// 5.6 Hz, 360 points ([`super::robot::ScanPattern::A1`]).
+    /// 5.6 Hz, 360 points ([`crate::firmware::robot::ScanPattern::A1`]).
     A1,
 }
+
 /// Sampler settings sent to the robot (each defaults to `RunConfig::robot`'s).
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct SamplerArgs {
@@ -210,6 +215,7 @@ pub struct SamplerArgs {
     #[arg(long)]
     pub max_candidates: Option<u8>,
 }
+
 impl SamplerArgs {
     /// `config` with these settings applied.
     pub fn apply(&self, config: RunConfig) -> RunConfig {
@@ -226,6 +232,7 @@ impl SamplerArgs {
         }
     }
 }
+
 /// `rays`, `evidence` or `hybrid`.
 pub fn parse_data_term(s: &str) -> Result<ogm_core::config::DataTerm, String> {
     use ogm_core::config::DataTerm;
@@ -236,6 +243,7 @@ pub fn parse_data_term(s: &str) -> Result<ogm_core::config::DataTerm, String> {
         _ => Err(format!("`{s}`: expected rays, evidence or hybrid")),
     }
 }
+
 /// `counts`, or `avg:SHIFT[-MAX]` / `rb:SHIFT[-MAX]` followed by `:reset` (restart changed
 /// cells): the average of draws, or of conditional probabilities (Rao-Blackwellised), whose
 /// shift lengthens from SHIFT to MAX (default: SHIFT) where the evidence settles.

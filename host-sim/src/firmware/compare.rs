@@ -18,6 +18,7 @@ pub(super) struct Checker {
     pub(super) mismatches: Vec<String>,
     pub(super) checks: u64,
 }
+
 impl Checker {
     pub(super) fn eq<T: PartialEq + std::fmt::Debug>(
         &mut self,
@@ -38,6 +39,7 @@ impl Checker {
         }
     }
 }
+
 /// Compares the firmware's stream with the host's run of the same application on the same
 /// input: every message equal except the board's timing and stack figures, and the streamed
 /// map equal to the host's engine cell for cell.
@@ -211,6 +213,7 @@ pub(super) fn compare(
     }
     Ok(())
 }
+
 fn first_diff<T: PartialEq + std::fmt::Display>(
     a: &[T],
     b: &[T],
@@ -219,6 +222,7 @@ fn first_diff<T: PartialEq + std::fmt::Display>(
     let i = a.iter().zip(b).position(|(x, y)| x != y)?;
     Some((i, n, a[i].to_string(), b[i].to_string()))
 }
+
 /// The streamed map: every tile the firmware sent, applied in order.
 fn streamed_map(g: &Groups) -> anyhow::Result<StreamedMap> {
     let (w, h) = (usize::from(FW.width), usize::from(FW.height));
@@ -228,6 +232,7 @@ fn streamed_map(g: &Groups) -> anyhow::Result<StreamedMap> {
     }
     Ok(m)
 }
+
 /// `--noise-ppm`: which packets and frames were damaged, and whether a host replay of only the
 /// ones the firmware can accept (intact, or damaged past the LD06's 8-bit CRC; in order;
 /// garbage dropped) gives the firmware's final map.

@@ -24,6 +24,7 @@ pub(super) struct Groups {
     pub(super) all_tiles: Vec<OwnedTile>,
     pub(super) idles: HashMap<u32, ogm_core::wire::IdleReport>,
 }
+
 #[derive(Default)]
 pub(super) struct ScanGroup {
     pub(super) report: ScanReport,
@@ -32,6 +33,7 @@ pub(super) struct ScanGroup {
     pub(super) counters: Option<Counters>,
     pub(super) ranges: Option<OwnedRanges>,
 }
+
 impl Groups {
     pub(super) fn of(events: &[DeviceEvent]) -> Groups {
         let mut g = Groups::default();

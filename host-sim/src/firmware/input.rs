@@ -30,6 +30,7 @@ pub struct RunInput {
     /// Every frame, packet and garbage burst, in order (they tile `bytes`).
     pub units: Vec<Unit>,
 }
+
 impl RunInput {
     fn push(&mut self, kind: UnitKind, bytes: &[u8]) {
         self.units.push(Unit {
@@ -47,6 +48,7 @@ impl RunInput {
         }
     }
 }
+
 /// What a span of the robot's input is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum UnitKind {
@@ -57,6 +59,7 @@ pub enum UnitKind {
     /// Deliberate garbage (`encode_run`'s `garbage`).
     Garbage,
 }
+
 /// One packet, frame or garbage burst of the input: `bytes[start..start + len]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Unit {
@@ -67,6 +70,7 @@ pub struct Unit {
     /// Length.
     pub len: usize,
 }
+
 /// Builds the input: `Config`, then per scan `ScanStart`, its LD06 packets and `ScanEnd`, then
 /// `Finish`. With `garbage`, every fifth gap between scans also carries junk — random bytes,
 /// stray `0x54`/`0x2C`/`0x00`, a truncated LD06 packet and a corrupted frame — which the robot
@@ -78,6 +82,7 @@ pub fn encode_run(
 ) -> anyhow::Result<RunInput> {
     encode_run_with(config, scans, garbage, 1)
 }
+
 /// [`encode_run`] sending every host frame `repeat_frames` times in a row (for a noisy link:
 /// a frame is lost only if all its copies are; the robot ignores exact repeats, see
 /// `ogm_core::lidar::link`).
@@ -89,6 +94,7 @@ pub fn encode_run_with(
 ) -> anyhow::Result<RunInput> {
     encode_run_idle(config, scans, garbage, repeat_frames, &[])
 }
+
 /// [`encode_run_with`] with idle periods (`HostMsg::Idle`, µs of board time each) after the
 /// last scan, before `Finish`.
 pub fn encode_run_idle(
@@ -155,6 +161,7 @@ pub fn encode_run_idle(
     input.frame(&HostMsg::Finish, repeat_frames);
     Ok(input)
 }
+
 /// A scan's beams as LD06 packets, in the sensor's (clockwise) order. Needs a multiple of 12
 /// beams, evenly spaced (as the simulator's are).
 pub fn scan_packets(beams: &[Beam], timestamp_ms: &mut u16) -> anyhow::Result<Vec<u8>> {

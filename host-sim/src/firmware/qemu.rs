@@ -232,6 +232,7 @@ pub(super) fn run_qemu(
         heard,
     })
 }
+
 /// What [`run_qemu`] returns.
 pub(super) struct QemuRun {
     /// The map stream (UART1).
@@ -243,6 +244,7 @@ pub(super) struct QemuRun {
     /// What the firmware wrote to the lidar (UART0) before the sensor's first byte.
     pub(super) heard: Vec<u8>,
 }
+
 /// The robot loop's second serial line and its end: the lidar's bytes on UART0, the order
 /// the two lines carry their bytes in, and the `Finish` frame the link sends once the firmware
 /// has reported turn `last_turn`.
@@ -255,8 +257,10 @@ pub(super) struct LidarLine<'a> {
     /// streams on its own).
     pub(super) answers: Option<[u8; 2]>,
 }
+
 /// How long the simulated sensor waits for the request it answers (wall time).
 const REQUEST_WAIT: Duration = Duration::from_secs(30);
+
 /// Reads `line` until `request` arrived (or `REQUEST_WAIT` passed); every byte the firmware
 /// wrote to the sensor meanwhile goes to `heard`.
 fn await_request(
@@ -281,10 +285,12 @@ fn await_request(
     }
     line.set_read_timeout(None)
 }
+
 /// Builds the firmware with `scripts/firmware.sh build`; returns the ELF.
 pub fn build_elf(log: &Path) -> anyhow::Result<PathBuf> {
     build_elf_with(log, None)
 }
+
 /// [`build_elf`] with optional firmware `features` (comma-separated; their own target dir).
 pub fn build_elf_with(log: &Path, features: Option<&str>) -> anyhow::Result<PathBuf> {
     let root = repo_root();
@@ -317,11 +323,13 @@ pub fn build_elf_with(log: &Path, features: Option<&str>) -> anyhow::Result<Path
     ensure!(elf.exists(), "ELF {} does not exist", elf.display());
     Ok(elf)
 }
+
 fn tail(path: &Path, lines: usize) -> String {
     let text = std::fs::read_to_string(path).unwrap_or_default();
     let v: Vec<&str> = text.lines().collect();
     v[v.len().saturating_sub(lines)..].join("\n")
 }
+
 /// Checks that `path` is an ELF executable (one-line errors naming the file).
 pub fn check_elf(path: &Path) -> anyhow::Result<()> {
     let bytes = match std::fs::read(path) {
@@ -360,6 +368,7 @@ pub fn check_elf(path: &Path) -> anyhow::Result<()> {
     );
     Ok(())
 }
+
 /// The repository root (host-sim's parent directory).
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -367,6 +376,7 @@ pub fn repo_root() -> PathBuf {
         .map(Path::to_path_buf)
         .unwrap_or_else(|| PathBuf::from("."))
 }
+
 /// Why the firmware cannot run here, if it cannot: `firmware/target/toolchain.env` (written by
 /// `scripts/firmware-toolchain.sh`) and the QEMU it names must exist.
 pub fn toolchain_missing() -> Option<String> {
@@ -390,6 +400,7 @@ pub fn toolchain_missing() -> Option<String> {
     }
     None
 }
+
 fn rand_seed() -> u64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)

@@ -63,6 +63,7 @@ pub(super) fn replay<N: Count, R>(
     }
     Ok(end(app.session(), &out))
 }
+
 /// The map the firmware's application ends with on `input` (its `Config`, scans, idle periods),
 /// with the sampler work the firmware reported in `events` (its decoded stream, which must
 /// hold its `Hello`): the host replay as a [`StreamedMap`], and its final sampler report.
@@ -96,6 +97,7 @@ pub fn replay_map(
     )?;
     state.context("the input carries no valid Config")
 }
+
 /// The firmware application's memory on the host, as a board places it in statics.
 pub struct HostMemory<N: Count> {
     session: Option<ReplaySession<N>>,
@@ -136,6 +138,7 @@ impl<N: Count> HostMemory<N> {
         })
     }
 }
+
 /// The host as the firmware application's platform: no clock, and exactly the sampler updates
 /// the firmware reported for each scan and idle period.
 struct HostPlatform<F> {
@@ -159,8 +162,10 @@ impl<F: Fn(Work) -> Option<u32>> Platform for HostPlatform<F> {
         Some(n.unwrap_or(0))
     }
 }
+
 /// The engine of a replay: the firmware's, over `Vec`s with counters of type `N`.
 pub type ReplaySession<N> = Session<Owned<N>>;
+
 /// Marginal p(occupied) per cell of `s` as the robot streams it: 0.5 (unknown) where no
 /// measurement reached the cell (log-odds 0, the rule of `ogm_field::stream::stream_probabilities`)
 /// or before the first sample.
@@ -177,6 +182,7 @@ pub fn marginals<N: Count>(s: &ReplaySession<N>) -> Vec<f64> {
         })
         .collect()
 }
+
 /// The ray store's sizes as a firmware reports them in its Hello (one of each without its
 /// `rays` feature).
 pub fn sizes_of(hello: &OwnedHello) -> Sizes {
@@ -188,6 +194,7 @@ pub fn sizes_of(hello: &OwnedHello) -> Sizes {
         local: (hello.local_capacity as usize).max(1),
     }
 }
+
 /// The compile-time sizes of the firmware built with its `rays` feature.
 pub const FIRMWARE_SIZES: Sizes = Sizes {
     width: FW.width,

@@ -61,12 +61,14 @@ pub struct FirmwareReport {
     /// `--robot`: the two serial lines and how well the turns were placed.
     pub robot: Option<RobotReport>,
 }
+
 impl FirmwareReport {
     /// Whether the firmware's map equals the host's, cell for cell (and it ran to the end).
     pub fn identical(&self) -> bool {
         self.mismatches.is_empty() && self.done.is_some() && self.checks > 0
     }
 }
+
 /// Instruction counts (QEMU `-icount shift=0`: 1 ns of board time = 1 instruction).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Figures {
@@ -103,6 +105,7 @@ pub struct Figures {
     /// Stack size, bytes.
     pub stack_size: u32,
 }
+
 /// `--robot`: what the lidar's UART and the link carried, and the placement error of the turns
 /// the firmware mapped against the simulator's true sensor pose at each turn's time.
 #[derive(Clone, Debug, Default, Serialize)]
@@ -122,6 +125,7 @@ pub struct RobotReport {
     /// Largest heading error of a turn's pose, degrees.
     pub max_heading_error_deg: f64,
 }
+
 /// `--noise-ppm`: the damage done to the robot's input.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct NoiseReport {
@@ -151,6 +155,7 @@ pub struct NoiseReport {
     /// for cell.
     pub surviving_replay_identical: bool,
 }
+
 /// `--accuracy`: metrics of the maps of the same runs.
 #[derive(Clone, Debug, Serialize)]
 pub struct Accuracy {
@@ -177,6 +182,7 @@ pub struct Accuracy {
     /// in (first world; at most ~200 points).
     pub anytime: Vec<AnytimePoint>,
 }
+
 /// One point of the anytime curve.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct AnytimePoint {
@@ -187,6 +193,7 @@ pub struct AnytimePoint {
     /// Max F1 of the log-odds map.
     pub log_odds: f64,
 }
+
 /// The figures from the firmware's reports.
 pub(super) fn figures(g: &Groups, hello: &OwnedHello) -> Figures {
     let ns_per_tick = 1e9 / f64::from(hello.tick_hz.max(1));
@@ -225,6 +232,7 @@ pub(super) fn figures(g: &Groups, hello: &OwnedHello) -> Figures {
     }
     f
 }
+
 /// Prints a report.
 pub fn print_report(r: &FirmwareReport) {
     if let Some(h) = &r.hello {

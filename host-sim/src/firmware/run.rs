@@ -197,6 +197,7 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     }
     Ok(report)
 }
+
 /// `--robot`: the robot loop in QEMU (see [`FirmwareArgs::robot`]).
 fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     ensure!(
@@ -340,8 +341,10 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         ..r
     })
 }
+
 /// The LD06 sits this far ahead of the robot's centre in `--robot` runs, mm.
 pub const ROBOT_MOUNT_X_MM: i32 = 60;
+
 /// What a `--robot` run's stream says: the turns and how well they were placed.
 fn robot_report(
     config: &RunConfig,
@@ -384,6 +387,7 @@ fn robot_report(
         ..FirmwareReport::default()
     }
 }
+
 /// The CLI entry point.
 pub fn cli(args: &FirmwareArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.decode {

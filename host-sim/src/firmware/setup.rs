@@ -24,6 +24,7 @@ pub fn sim_config(args: &FirmwareArgs) -> SimConfig {
     }
     cfg
 }
+
 /// The world of a run: `--map` (5 cm, cropped to the firmware grid) or a generated building.
 pub fn firmware_world(args: &FirmwareArgs) -> anyhow::Result<World> {
     let (w, h) = (usize::from(FW.width), usize::from(FW.height));
@@ -42,6 +43,7 @@ pub fn firmware_world(args: &FirmwareArgs) -> anyhow::Result<World> {
         ),
     })
 }
+
 /// The settings sent to the robot for `world`.
 pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunConfig {
     let budget = match args.fixed_updates {
@@ -64,6 +66,7 @@ pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunC
         ..robot
     })
 }
+
 /// The idle periods (µs) between the cumulative marks `secs` (increasing, positive).
 pub(super) fn idle_periods_us(secs: &[f64]) -> anyhow::Result<Vec<u32>> {
     let mut prev = 0.0;

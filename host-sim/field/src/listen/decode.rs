@@ -26,6 +26,7 @@ impl Listener {
         }
         self.decode(data)
     }
+
     fn decode(&mut self, data: &[u8]) -> Vec<Notice> {
         let mut notices = Vec::new();
         if data.is_empty() {
@@ -71,6 +72,7 @@ impl Listener {
         }
         notices
     }
+
     fn event(&mut self, ev: DeviceEvent, notices: &mut Vec<Notice>) {
         match ev {
             DeviceEvent::Hello(h) => {
@@ -186,6 +188,7 @@ impl Listener {
             DeviceEvent::Ranges(r) => self.scan_ranges(&r, notices),
         }
     }
+
     /// A scan's ranges: its points, placed at the pose of the report with the same `seq`, to
     /// the recording and the live view (dropped if that report was missed).
     fn scan_ranges(&mut self, r: &crate::stream::OwnedRanges, notices: &mut Vec<Notice>) {
@@ -256,6 +259,7 @@ mod tests {
         assert_eq!(m.log_odds[16], 101 - 1500);
         assert_eq!(m.log_odds[16 * 40 + 16], 4 * 101 - 1500);
     }
+
     #[test]
     fn corrupted_bytes_are_dropped_and_counted() {
         let clean = stream(&[0, 1, 2]);
@@ -297,6 +301,7 @@ mod tests {
         assert!(notices.iter().any(|n| matches!(n, Notice::Done(_))));
         assert_eq!(st.tiles, 6);
     }
+
     #[test]
     fn gaps_are_counted_and_reconnects_resync() {
         let s = stream(&[0, 1, 2, 6, 7]);
@@ -333,6 +338,7 @@ mod tests {
         assert_eq!(l.stats().scans_missed, 5);
         assert_eq!(l.map().unwrap().tiles, 2);
     }
+
     #[test]
     fn absurd_hello_is_refused_and_tiles_without_hello_assume_the_firmware_grid() {
         let big = frame(&DeviceMsg::Hello(Hello {

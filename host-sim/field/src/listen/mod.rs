@@ -123,6 +123,7 @@ impl Listener {
             last_pose: None,
         }
     }
+
     /// A listener that keeps its capture at `path`: unless `fresh`, an existing capture is
     /// replayed first (map and counters as the previous listener left them) and the new bytes
     /// are appended after a `0x00` (which ends a frame the previous listener was cut off in).
@@ -167,38 +168,46 @@ impl Listener {
         l.dirty = true;
         Ok(l)
     }
+
     /// The link was cut (device reopened): the frame in progress is lost and counted as a bad
     /// frame; a gap in the scan numbers that follows is counted when the next report arrives.
     pub fn reconnected(&mut self) {
         self.stats.reconnects += 1;
         self.cut();
     }
+
     fn cut(&mut self) {
         // The cut frame's bytes count as skipped on the way back to a good frame.
         let before = self.stats.garbage_bytes;
         let _ = self.push(&[0]);
         self.resync_from = Some(before);
     }
+
     /// Counters and state.
     pub fn stats(&self) -> &ListenStats {
         &self.stats
     }
+
     /// Mutable counters (the I/O loop adds `disconnected_secs`, `sent`).
     pub fn stats_mut(&mut self) -> &mut ListenStats {
         &mut self.stats
     }
+
     /// The map so far (none before the first `Hello` or tile).
     pub fn map(&self) -> Option<&StreamedMap> {
         self.map.as_ref()
     }
+
     /// Cells whose marginal tile has arrived.
     pub fn have_counts(&self) -> &[bool] {
         &self.have_counts
     }
+
     /// Whether anything changed since the last save.
     pub fn dirty(&self) -> bool {
         self.dirty
     }
+
     /// One status line.
     pub fn status_line(&self) -> String {
         let s = &self.stats;

@@ -48,10 +48,12 @@ impl Listener {
         self.live_dirty = true;
         Ok(a)
     }
+
     /// The live view's server, if any.
     pub fn live(&self) -> Option<&crate::live::LiveServer> {
         self.live.as_ref()
     }
+
     /// Sends both maps to the live view if tiles arrived since it last got them, at most every
     /// [`LIVE_PERIOD`] (a map is a few hundred KiB of JSON; the viewer needs no more).
     pub fn live_tick(&mut self) {
@@ -79,6 +81,7 @@ impl Listener {
             }
         }
     }
+
     /// Records from now on into the MCAP file `path` (replaced), starting with the map as it
     /// stands (a resumed capture's).
     pub fn record_to(&mut self, path: &Path) -> anyhow::Result<()> {
@@ -86,10 +89,12 @@ impl Listener {
         self.record_maps();
         Ok(())
     }
+
     /// Closes the recording (summary and index written); its path, if there was one.
     pub fn finish_recording(&mut self) -> anyhow::Result<Option<PathBuf>> {
         self.recording.take().map(|r| r.finish()).transpose()
     }
+
     /// Both layers into the recording, if any. A write error ends the recording with a warning
     /// (the maps on disk are unaffected).
     fn record_maps(&mut self) {
@@ -106,6 +111,7 @@ impl Listener {
             }
         }
     }
+
     /// Both layers as the recording and the live view send them.
     fn map_layers(&self) -> Vec<LayerCells> {
         let Some(map) = self.map.as_ref() else {
@@ -137,6 +143,7 @@ impl Listener {
         }
         out
     }
+
     /// Probabilities of `layer` (none before the first `Hello` or tile).
     pub fn probabilities(&self, layer: MapLayer) -> Option<Vec<f64>> {
         let map = self.map.as_ref()?;
@@ -147,6 +154,7 @@ impl Listener {
         );
         Some(stream_probabilities(map, &self.have_counts, one, layer))
     }
+
     /// Cell size (m) and the world position of cell (0, 0) (m): from the robot's
     /// `Configured`, else 5 cm at (0, 0).
     fn geometry(&self) -> (f64, (f64, f64)) {
@@ -161,6 +169,7 @@ impl Listener {
             _ => (0.05, (0.0, 0.0)),
         }
     }
+
     /// The map of `layer` as a trinary world (export's thresholds); cell size and origin from
     /// the robot's `Configured`, else 5 cm at (0, 0).
     pub fn world(&self, layer: MapLayer) -> Option<World> {
@@ -177,6 +186,7 @@ impl Listener {
             DEFAULT_FREE_THRESH,
         ))
     }
+
     /// Writes `map.*`, `log_odds.*` (when there is a map) and `status.json` into `dir`, each
     /// file first into `dir/.saving/` and then renamed into place (images before their YAML).
     /// Returns the files written.

@@ -499,6 +499,7 @@ mod tests {
             }
         }
     }
+
     /// Reads from `port` until `n` bytes came (or 10 s passed).
     fn read_n(port: &mut dyn serialport::SerialPort, n: usize) -> Vec<u8> {
         let mut got = Vec::new();
@@ -511,6 +512,7 @@ mod tests {
         }
         got
     }
+
     fn wait(what: &str, f: impl Fn() -> bool) {
         let t0 = Instant::now();
         while !f() {
@@ -518,6 +520,7 @@ mod tests {
             std::thread::sleep(Duration::from_millis(5));
         }
     }
+
     /// A pseudo-terminal pair stands in for a USB serial adapter: the listener opens the device
     /// through a symlink (as udev's /dev/serial/by-id links), "unplug" closes the robot's end
     /// and removes the link, "replug" makes a new pair behind the same link.

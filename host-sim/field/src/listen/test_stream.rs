@@ -9,6 +9,7 @@ pub(super) fn frame(msg: &DeviceMsg<'_>) -> Vec<u8> {
     let mut buf = [0u8; wire::MAX_DEVICE_FRAME];
     wire::encode(msg, &mut buf).unwrap().to_vec()
 }
+
 /// COBS with the terminating 0x00.
 pub(super) fn cobs(raw: &[u8]) -> Vec<u8> {
     let mut out = vec![0];
@@ -31,6 +32,7 @@ pub(super) fn cobs(raw: &[u8]) -> Vec<u8> {
     out.push(0);
     out
 }
+
 pub(super) fn hello() -> Vec<u8> {
     frame(&DeviceMsg::Hello(Hello {
         firmware: "test",
@@ -46,6 +48,7 @@ pub(super) fn hello() -> Vec<u8> {
         count_max: 255,
     }))
 }
+
 pub(super) fn config() -> RunConfig {
     RunConfig {
         origin_x_mm: -1000,
@@ -53,6 +56,7 @@ pub(super) fn config() -> RunConfig {
         ..default_config()
     }
 }
+
 /// A run of `seqs` scans on a 40 x 24 grid (3 x 2 tiles): each scan sends one log-odds and
 /// one counts tile; values depend on the scan.
 pub(super) fn stream(seqs: &[u32]) -> Vec<u8> {

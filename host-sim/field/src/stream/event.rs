@@ -61,8 +61,9 @@ impl From<DeviceMsg<'_>> for DeviceEvent {
 ///
 /// [`StreamDecoder`](super::StreamDecoder) hands out events that outlive the frame they were
 /// decoded from, and `Hello` borrows its two strings from that frame (ogm-core has no
-/// allocator), so the decoded message needs this owned copy; [`OwnedHello::from`] is the only
-/// way to make one, field for field.
+/// allocator), so the decoded message needs this owned copy, made field for field by
+/// `From<&Hello>`. Whatever on the host keeps a robot's `Hello` (`listen`'s status, the
+/// firmware report) keeps this one.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct OwnedHello {
     /// Firmware name and version.

@@ -92,6 +92,7 @@ pub enum MapError {
         detail: String,
     },
 }
+
 /// Flattens a message to one line.
 pub(crate) fn one_line(s: impl std::fmt::Display) -> String {
     s.to_string()
@@ -99,6 +100,7 @@ pub(crate) fn one_line(s: impl std::fmt::Display) -> String {
         .collect::<Vec<_>>()
         .join(" ")
 }
+
 /// A value from a file quoted in a message: one line, at most 60 characters.
 pub(crate) fn clip(s: &str) -> String {
     let s = one_line(s);

@@ -52,6 +52,7 @@ pub struct SamplingConfig {
     /// Change-driven share of tile visits, of 256.
     pub hot_share: u8,
 }
+
 impl Default for SamplingConfig {
     fn default() -> Self {
         SamplingConfig {
@@ -77,6 +78,7 @@ impl Default for SamplingConfig {
         }
     }
 }
+
 impl SamplingConfig {
     /// The inverse model of the map the evidence term reads: `mapper`'s with the free update
     /// scaled by `free_update_q8` and, with `face_band`, the band of σ = `sigma_cells`.
@@ -105,6 +107,7 @@ impl SamplingConfig {
             .map_err(|e| anyhow!("free update scale {q8}: {e}"))
     }
 }
+
 /// Buffer sizes: `None` = large enough for everything (the host's unbounded configuration).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 pub struct Bounds {

@@ -41,7 +41,9 @@ pub(crate) fn rays_and_model(
     .map_err(|e| anyhow!("forward model: {e}"))?;
     Ok((store, fm))
 }
+
 pub(crate) type Store = RayStore<Vec<StoredScan>, Vec<StoredRay>>;
+
 /// The scans mapped again with `model` instead of `mapper`'s: the log-odds map the robot's
 /// mapper keeps (`RunConfig::mapper_config`, [`SamplingConfig::evidence_model`]).
 pub fn evidence_map(

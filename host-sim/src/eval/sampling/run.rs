@@ -41,6 +41,7 @@ pub fn run_sampler(
         seconds_per_sweep: seconds / f64::from((cfg.burn_in + cfg.sweeps).max(1)),
     })
 }
+
 /// What a sampler run produced.
 #[derive(Clone, Debug)]
 pub struct SamplerOutput {
@@ -55,10 +56,12 @@ pub struct SamplerOutput {
     /// Seconds per map sample (K/L patch updates).
     pub seconds_per_sweep: f64,
 }
+
 /// A sampler set up on a dataset (rays stored, sample initialised), ready to sweep.
 pub struct Prepared {
     inner: Box<dyn Sweeper>,
 }
+
 impl Prepared {
     /// Stores the dataset's rays and initialises `variant` from the thresholded `map`.
     pub fn new(
@@ -134,12 +137,14 @@ impl Prepared {
         self.inner.store_stats()
     }
 }
+
 trait Sweeper {
     fn sweeps(&mut self, n: u32);
     fn marginals(&self) -> Vec<f64>;
     fn stats(&self) -> SamplerStats;
     fn store_stats(&self) -> StoreStats;
 }
+
 /// A sampler on a complete dataset: every ray stored up front, the sample initialised from the
 /// final log-odds map (`Gibbs::reset`), swept `sweep` patch updates at a time, with any patch
 /// prior and counter type.
@@ -162,32 +167,40 @@ impl<P: PatchPrior, N: ogm_core::sampler::gibbs::Count> Sweeper for OfflineSampl
             self.gibbs.step(&mut self.store, &self.map, self.sweep);
         }
     }
+
     fn marginals(&self) -> Vec<f64> {
         (0..self.gibbs.geometry().len())
             .map(|i| self.gibbs.marginal(i).map_or(0.5, f64::from))
             .collect()
     }
+
     fn stats(&self) -> SamplerStats {
         self.gibbs.stats()
     }
+
     fn store_stats(&self) -> StoreStats {
         self.store.stats()
     }
 }
+
 impl Sweeper for L25Sampler {
     fn sweeps(&mut self, n: u32) {
         L25Sampler::sweeps(self, n);
     }
+
     fn marginals(&self) -> Vec<f64> {
         L25Sampler::marginals(self)
     }
+
     fn stats(&self) -> SamplerStats {
         L25Sampler::stats(self)
     }
+
     fn store_stats(&self) -> StoreStats {
         L25Sampler::store_stats(self)
     }
 }
+
 fn offline_sampler<P: PatchPrior + 'static>(
     geometry: GridGeometry,
     mapper: &MapperConfig,
@@ -207,6 +220,7 @@ fn offline_sampler<P: PatchPrior + 'static>(
         )?)
     })
 }
+
 fn build<P: PatchPrior, N: ogm_core::sampler::gibbs::Count>(
     geometry: GridGeometry,
     mapper: &MapperConfig,

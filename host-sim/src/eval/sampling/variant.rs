@@ -30,6 +30,7 @@ pub enum Variant {
     /// data-driven prior"): the host-only [`super::l25::L25Sampler`].
     L25,
 }
+
 impl Variant {
     /// The paper's Table II columns, then the robot's sampler and its other data terms, then
     /// Table I's L = 25.

@@ -57,6 +57,7 @@ pub struct GenParams {
     /// Free gap kept around clutter (m), so a robot can pass.
     pub clutter_clearance_m: f64,
 }
+
 impl Default for GenParams {
     /// 500 × 500 cells of 5 cm (25 m square), 3-cell walls, 4-cell outer wall, 1.8 m main
     /// corridor, 0.9 m doors, rooms 2.5–7 m, 5 % clutter.
@@ -81,10 +82,12 @@ impl Default for GenParams {
         }
     }
 }
+
 /// The embedded default world of the demo: `generate(&GenParams::default(), 1)`.
 pub fn default_world() -> World {
     generate(&GenParams::default(), 1)
 }
+
 /// Generates a building-like world (see the module docs). Deterministic in `(params, seed)`;
 /// never panics, whatever the parameters (degenerate ones give degenerate but valid worlds).
 /// The free space is always a single 4-connected region (if there is any).
@@ -94,6 +97,7 @@ pub fn generate(params: &GenParams, seed: u64) -> World {
     seal_pockets(&mut world);
     world
 }
+
 /// Fills every free region but the largest.
 fn seal_pockets(world: &mut World) {
     let comps = world.free_components();
@@ -107,6 +111,7 @@ fn seal_pockets(world: &mut World) {
         }
     }
 }
+
 fn generate_unsealed(params: &GenParams, seed: u64) -> World {
     let width = params.width.clamp(1, MAX_SIDE);
     let height = params.height.clamp(1, MAX_SIDE);
@@ -178,6 +183,7 @@ fn generate_unsealed(params: &GenParams, seed: u64) -> World {
         cells: g.cells,
     }
 }
+
 struct Gen {
     w: usize,
     h: usize,
@@ -189,6 +195,7 @@ struct Gen {
     doors: Vec<(Rect, bool)>,
     extra_split_prob: f64,
 }
+
 /// Parameters in cells.
 struct Cells {
     t: usize,
@@ -202,6 +209,7 @@ struct Cells {
     approach: usize,
     clear: usize,
 }
+
 /// Half-open cell rectangle `[x0, x1) × [y0, y1)`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Rect {
@@ -210,17 +218,21 @@ struct Rect {
     x1: usize,
     y1: usize,
 }
+
 impl Rect {
     fn w(&self) -> usize {
         self.x1.saturating_sub(self.x0)
     }
+
     fn h(&self) -> usize {
         self.y1.saturating_sub(self.y0)
     }
+
     fn area(&self) -> usize {
         self.w() * self.h()
     }
 }
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Side {
     Left,
@@ -228,6 +240,7 @@ enum Side {
     Bottom,
     Top,
 }
+
 /// An opening in the wall on `side` of a region, spanning `[lo, hi)` along that side.
 #[derive(Clone, Copy, Debug)]
 struct Door {
@@ -235,14 +248,17 @@ struct Door {
     lo: usize,
     hi: usize,
 }
+
 #[derive(Clone, Copy, Debug)]
 struct Leaf {
     rect: Rect,
     corridor: bool,
 }
+
 fn chance(rng: &mut Xoshiro256PlusPlus, p: f64) -> bool {
     rng.random::<f64>() < p
 }
+
 /// Uniform in `lo..=hi` (`lo` if the range is empty).
 fn pick(rng: &mut Xoshiro256PlusPlus, lo: usize, hi: usize) -> usize {
     if hi <= lo {
@@ -251,6 +267,7 @@ fn pick(rng: &mut Xoshiro256PlusPlus, lo: usize, hi: usize) -> usize {
         rng.random_range(lo..=hi)
     }
 }
+
 fn uniform(rng: &mut Xoshiro256PlusPlus, lo: f64, hi: f64) -> f64 {
     lo + (hi - lo) * rng.random::<f64>()
 }
@@ -267,15 +284,18 @@ impl Gen {
             }
         }
     }
+
     fn at(&self, x: usize, y: usize) -> Truth {
         self.cells
             .get(y * self.w + x)
             .copied()
             .unwrap_or(Truth::Occupied)
     }
+
     fn any_occupied(&self, r: Rect) -> bool {
         (r.y0..r.y1).any(|y| (r.x0..r.x1).any(|x| self.at(x, y) == Truth::Occupied))
     }
+
     /// Carves a door (free cells) and remembers it; `vertical_wall` tells its orientation.
     fn carve(&mut self, r: Rect, vertical_wall: bool) {
         self.fill(r, Truth::Free);

@@ -56,6 +56,7 @@ impl Gen {
             corridor: false,
         });
     }
+
     /// Splits `r` by one wall; `vertical` = the wall runs along y (splits x).
     fn split_wall(&mut self, r: Rect, doors: &[Door], vertical: bool) -> bool {
         let (t, minr) = (self.c.t, self.c.min_room);
@@ -142,6 +143,7 @@ impl Gen {
         self.split(b, db, false);
         true
     }
+
     /// Splits `r` by a corridor of width `cw` with a wall on each side.
     fn split_corridor(&mut self, r: Rect, doors: &[Door], horizontal: bool, cw: usize) -> bool {
         let (t, minr) = (self.c.t, self.c.min_room);
@@ -273,6 +275,7 @@ impl Gen {
         }
         true
     }
+
     /// The doors of parent `p` that lie on the boundary of its child `c`.
     fn inherit(doors: &[Door], p: Rect, c: Rect) -> Vec<Door> {
         doors
@@ -289,6 +292,7 @@ impl Gen {
             .copied()
             .collect()
     }
+
     /// Positions `s` in `lo..=hi` where a band `[s, s + band)` keeps `door_clear` cells away
     /// from every door interval in `doors`.
     fn clear_positions(
@@ -307,6 +311,7 @@ impl Gen {
             })
             .collect()
     }
+
     /// Door intervals of `doors` on the given sides.
     fn intervals(doors: &[Door], sides: &[Side]) -> Vec<(usize, usize)> {
         doors
@@ -315,6 +320,7 @@ impl Gen {
             .map(|d| (d.lo, d.hi))
             .collect()
     }
+
     /// A door interval of `self.c.door` cells within `[lo, hi)`, with clearance if possible.
     fn door_span(&mut self, lo: usize, hi: usize) -> (usize, usize) {
         let (d, dc) = (self.c.door, self.c.door_clear);
@@ -330,6 +336,7 @@ impl Gen {
         let s = pick(&mut self.rng, a, b);
         (s, s + d)
     }
+
     /// Adds doors between neighbouring leaves: every room onto each corridor it borders,
     /// corridors onto corridors (full width), rooms onto rooms with `extra_prob`.
     pub(super) fn connect_neighbours(&mut self, extra_prob: f64) {
@@ -394,6 +401,7 @@ impl Gen {
             }
         }
     }
+
     /// Whether the wall between two leaves already has an opening. `vertical`: the wall spans
     /// x in `[k - t, k)` and the overlap runs along y; otherwise transposed.
     fn has_opening(&self, vertical: bool, k: usize, lo: usize, hi: usize) -> bool {

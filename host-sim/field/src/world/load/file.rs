@@ -12,6 +12,7 @@ pub(super) fn extension(path: &Path) -> String {
         .unwrap_or("")
         .to_ascii_lowercase()
 }
+
 pub(super) fn check_exists(path: &Path) -> Result<(), MapError> {
     match std::fs::metadata(path) {
         Ok(m) if m.is_dir() => Err(MapError::Io {
@@ -28,6 +29,7 @@ pub(super) fn check_exists(path: &Path) -> Result<(), MapError> {
         }),
     }
 }
+
 pub(super) fn open(path: &Path) -> Result<(File, u64), MapError> {
     check_exists(path)?;
     let io = |e: std::io::Error| match e.kind() {

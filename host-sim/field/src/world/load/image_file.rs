@@ -19,6 +19,7 @@ pub enum ImageKind {
     /// PGM, plain (P2) or binary (P5).
     Pgm,
 }
+
 /// Decodes a `.png` (PNG) or `.pgm` (P2/P5) file, checking content against extension, size
 /// against [`MAX_SIDE`], and turning every decoder failure (even a panic) into a [`MapError`].
 pub(super) fn decode_image(path: &Path) -> Result<DynamicImage, MapError> {
@@ -43,6 +44,7 @@ pub(super) fn decode_image(path: &Path) -> Result<DynamicImage, MapError> {
         })?;
     decode_image_bytes(path, &bytes, kind, MAX_SIDE)
 }
+
 /// The byte-level half of the image loader (what [`load_image`] runs on a file's contents, and
 /// what the `map_loader` fuzz target drives): checks the content against `kind`, the size
 /// against `max_side` pixels a side (at most [`MAX_SIDE`]), and turns every decoder failure
@@ -134,7 +136,9 @@ pub fn decode_image_bytes(
     .map_err(corrupt)?;
     Ok(img)
 }
+
 pub(super) const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
+
 /// What the first bytes say a file is.
 fn sniff(head: &[u8]) -> &'static str {
     if head.starts_with(PNG_SIGNATURE) {

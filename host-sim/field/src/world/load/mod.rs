@@ -80,11 +80,13 @@ pub fn load_world(path: &Path, resolution_override: Option<f64>) -> Result<World
         }),
     }
 }
+
 /// Loads a `.png` or `.pgm` image as ground truth with the given parameters.
 pub fn load_image(path: &Path, params: &ImageParams) -> Result<World, MapError> {
     let img = decode_image(path)?;
     Ok(World::from_image(&img, params))
 }
+
 fn check_resolution(path: &Path, r: f64, what: &str) -> Result<(), MapError> {
     if r.is_finite() && r > 0.0 {
         Ok(())

@@ -21,6 +21,7 @@ pub struct RosMapMeta {
     /// map_server consumers do for the grid itself).
     pub origin_yaw: f64,
 }
+
 /// Reads and validates a ROS map_server YAML.
 ///
 /// Required keys: `image` (relative paths resolve against the YAML's directory), `resolution`
@@ -48,6 +49,7 @@ pub fn read_ros_yaml(path: &Path) -> Result<RosMapMeta, MapError> {
         })?;
     parse_ros_yaml(path, &bytes)
 }
+
 /// The byte-level half of [`read_ros_yaml`]: validates a map YAML's contents (`path` names it in
 /// errors and anchors a relative `image`). Used by the `map_loader` fuzz target.
 pub fn parse_ros_yaml(path: &Path, bytes: &[u8]) -> Result<RosMapMeta, MapError> {
@@ -202,8 +204,10 @@ pub fn parse_ros_yaml(path: &Path, bytes: &[u8]) -> Result<RosMapMeta, MapError>
         origin_yaw: origin[2],
     })
 }
+
 /// Largest map YAML read (bytes); anything bigger is not a map description.
 const MAX_YAML_BYTES: u64 = 1 << 20;
+
 fn kind(v: &Value) -> &'static str {
     match v {
         Value::Null => "nothing",

@@ -28,6 +28,7 @@ pub struct ImageParams {
     /// Pixel interpretation.
     pub mode: MapMode,
 }
+
 impl Default for ImageParams {
     /// 0.05 m, origin (0, 0), thresholds 0.65 / 0.196, not negated, trinary.
     fn default() -> Self {
@@ -41,6 +42,7 @@ impl Default for ImageParams {
         }
     }
 }
+
 impl ImageParams {
     /// Truth of a pixel of brightness `v` in [0, 1] (1 = white).
     fn classify(&self, v: f64) -> Truth {
@@ -70,6 +72,7 @@ impl ImageParams {
         (0..levels).map(|i| self.classify(i as f64 / max)).collect()
     }
 }
+
 /// How map_server interprets pixel values (`mode` in the YAML).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum MapMode {
@@ -82,6 +85,7 @@ pub enum MapMode {
     /// unknown. For ground truth, `value / 100` is thresholded like the other modes.
     Raw,
 }
+
 impl World {
     /// Ground truth from a decoded image with map_server semantics (see the module docs); the
     /// top image row becomes the highest row. `params` are used as given (the loaders validate
