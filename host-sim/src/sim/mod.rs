@@ -1,6 +1,6 @@
 //! The simulator the researcher and the firmware developer share: one simulated dataset — a
 //! world ([`generate`] builds them; the type is `ogm_field::world::World`), a robot exploring it
-//! ([`explore`]), the synthetic lidar ([`lidar`]), and the online fixed-point mapper — wired
+//! ([`mod@explore`]), the synthetic lidar ([`lidar`]), and the online fixed-point mapper — wired
 //! through `ogm_core::session::pipeline::map_next_scan` and the `hal` traits (`RangeSensor`,
 //! `PoseSource`) that `ogm_core`'s LD06 and RPLIDAR readers implement; and real recorded scans,
 //! CARMEN logs ([`carmen`]), in the same form ([`explore::ScanRecord`]). (Today's firmware

@@ -1,5 +1,5 @@
 //! What every sampler starts from on a recorded dataset: its rays in a ray store with the
-//! forward model ([`rays_and_model`]), and the log-odds map the evidence term reads
+//! forward model (`rays_and_model`), and the log-odds map the evidence term reads
 //! ([`evidence_map`]).
 
 use anyhow::anyhow;

@@ -45,7 +45,7 @@ pub(super) fn decode_image(path: &Path) -> Result<DynamicImage, MapError> {
     decode_image_bytes(path, &bytes, kind, MAX_SIDE)
 }
 
-/// The byte-level half of the image loader (what [`load_image`] runs on a file's contents, and
+/// The byte-level half of the image loader (what [`load_image`](super::load_image) runs on a file's contents, and
 /// what the `map_loader` fuzz target drives): checks the content against `kind`, the size
 /// against `max_side` pixels a side (at most [`MAX_SIDE`]), and turns every decoder failure
 /// (even a panic) into a [`MapError`] naming `path`.

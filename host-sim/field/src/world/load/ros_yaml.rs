@@ -17,7 +17,7 @@ pub struct RosMapMeta {
     pub image: PathBuf,
     /// Resolution, origin (x, y), negate, thresholds and mode.
     pub params: ImageParams,
-    /// The origin's yaw (rad). [`World`] has no rotation, so the loader ignores it (like most
+    /// The origin's yaw (rad). [`World`](crate::world::World) has no rotation, so the loader ignores it (like most
     /// map_server consumers do for the grid itself).
     pub origin_yaw: f64,
 }
