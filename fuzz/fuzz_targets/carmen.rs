@@ -1,10 +1,10 @@
-//! The CARMEN log reader (`host_sim::carmen::parse_log`): arbitrary text (and bytes) as a log,
+//! The CARMEN log reader (`host_sim::sim::carmen::parse_log`): arbitrary text (and bytes) as a log,
 //! with or without a given maximum range (the first byte picks it, NaN and ∞ included).
 //! Invariants: nothing panics; only an I/O-level problem is an error; every accepted scan is
 //! counted once; hits and no-returns add up to the beams kept; warnings are capped.
 #![no_main]
 
-use host_sim::carmen::{parse_log, ReadOptions, MAX_WARNINGS};
+use host_sim::sim::carmen::{parse_log, ReadOptions, MAX_WARNINGS};
 use libfuzzer_sys::fuzz_target;
 use ogm_core::Range;
 

@@ -1,4 +1,4 @@
-//! The map loader's byte-level decode path (`host_sim::world::load`): the first byte picks PNG,
+//! The map loader's byte-level decode path (`ogm_field::world::load`): the first byte picks PNG,
 //! PGM or a map_server YAML; the rest is the file's content. A decoded image becomes a `World`
 //! (map_server semantics) and is resampled to 5 cm like `host-sim firmware --map` does.
 //! Invariants: nothing panics (the decoders' own panics are caught and reported as errors);
@@ -7,9 +7,9 @@
 
 use std::path::Path;
 
-use host_sim::world::load::{decode_image_bytes, parse_ros_yaml, ImageKind, ImageParams};
-use host_sim::world::World;
 use libfuzzer_sys::fuzz_target;
+use ogm_field::world::load::{decode_image_bytes, parse_ros_yaml, ImageKind, ImageParams};
+use ogm_field::world::World;
 
 /// Small enough that a huge declared size cannot exhaust the fuzzer's memory.
 const MAX_SIDE: usize = 1024;

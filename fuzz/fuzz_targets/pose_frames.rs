@@ -363,7 +363,7 @@ fuzz_target!(|items: Vec<Item>| {
         }
     };
     rx.feed(&bytes, &mut scan, |step| match step {
-        Step::Config(c) => {
+        Step::Host(HostMsg::Config(c)) => {
             if !configured {
                 configured = true;
                 turns = Turns::configured(&c);
@@ -386,12 +386,12 @@ fuzz_target!(|items: Vec<Item>| {
                 assert!(lo.x <= hi.x && lo.y <= hi.y);
             }
         }
-        Step::Pose { t_us, pose } => {
+        Step::Host(HostMsg::Pose { t_us, pose }) => {
             let _ = turns.push_pose(t_us, pose, &mut turn_buf, |t| {
                 map_turn(&mut machine, t, &mut turn_maps)
             });
         }
-        Step::Finish | Step::Idle { .. } | Step::Error(_) => {}
+        Step::Host(_) | Step::Error(_) => {}
     });
     rx.finish(|_| {});
     parser.feed(&bytes, |p| {

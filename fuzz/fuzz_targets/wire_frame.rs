@@ -1,16 +1,16 @@
 //! The postcard/COBS frame decoders (`ogm_core::wire`): arbitrary bytes as a host → robot frame
 //! (`HostMsg`, what the robot decodes) and as a robot → host frame (`DeviceMsg`), through the
 //! robot's demultiplexer (`ogm_core::lidar::link::LinkDemux`) and the host's stream decoder
-//! (`host_sim::link::StreamDecoder`) in input-chosen chunks. Invariants: nothing panics; a frame
+//! (`ogm_field::stream::StreamDecoder`) in input-chosen chunks. Invariants: nothing panics; a frame
 //! that decodes re-encodes into one that decodes to the same message (a scan's ranges into at
 //! most `SCAN_BINS` bins, or refused for their length); the demultiplexer's
 //! counters add up to the bytes it saw.
 #![no_main]
 
-use host_sim::link::StreamDecoder;
 use libfuzzer_sys::fuzz_target;
 use ogm_core::lidar::link::{LinkDemux, LinkEvent};
 use ogm_core::wire::{self, DeviceMsg, HostMsg, MAX_DEVICE_FRAME, MAX_HOST_FRAME};
+use ogm_field::stream::StreamDecoder;
 
 fuzz_target!(|data: &[u8]| {
     let Some((&chunk, bytes)) = data.split_first() else {

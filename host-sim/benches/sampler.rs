@@ -4,9 +4,9 @@
 //! before timing. `cargo bench -p host-sim --bench sampler`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use host_sim::sampling::{SamplingConfig, Variant};
+use host_sim::eval::sampling::{SamplingConfig, Variant};
+use host_sim::sim::generate::{generate, GenParams};
 use host_sim::sim::{simulate, SimConfig};
-use host_sim::world::generate::{generate, GenParams};
 
 fn bench(c: &mut Criterion) {
     let params = GenParams {
@@ -21,7 +21,7 @@ fn bench(c: &mut Criterion) {
     group.sample_size(10);
     for v in Variant::ALL {
         let cfg = SamplingConfig::default();
-        let mut s = host_sim::sampling::Prepared::new(
+        let mut s = host_sim::eval::sampling::Prepared::new(
             run.geometry,
             &run.mapper_config,
             &run.scans,

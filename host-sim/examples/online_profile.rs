@@ -27,6 +27,6 @@ fn main() -> anyhow::Result<()> {
         r.insert(&s.pose, &s.beams)?;
         r.step(updates);
     }
-    println!("{:?}", r.gibbs().stats());
+    println!("{:?}", r.sampler_report());
     Ok(())
 }

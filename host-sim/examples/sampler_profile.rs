@@ -3,7 +3,7 @@
 //! `cargo run --release -p host-sim --example sampler_profile -- [l1|l9|border] [tile_shift]
 //! [max_candidates] [visit_sweeps]`; with valgrind, `--toggle-collect='*Gibbs*step*'` counts the
 //! sampler's instructions only.
-use host_sim::sampling::{run_sampler, SamplingConfig, Variant};
+use host_sim::eval::sampling::{run_sampler, SamplingConfig, Variant};
 use host_sim::sim::{simulate, SimConfig};
 
 fn arg<T: std::str::FromStr>(i: usize, default: T) -> T {
@@ -19,7 +19,7 @@ fn main() -> anyhow::Result<()> {
         Some("l9") => Variant::L9,
         _ => Variant::L9Border,
     };
-    let world = host_sim::world::generate::default_world();
+    let world = host_sim::sim::generate::default_world();
     let run = simulate(&world, &SimConfig::default(), 1)?;
     let cfg = SamplingConfig {
         burn_in: 0,

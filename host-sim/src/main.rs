@@ -20,7 +20,7 @@ struct Cli {
 enum Commands {
     /// Online insertion throughput of ogm_core::Mapper on CARMEN logs, in the MRPT peer's unit
     /// (cells walked per second) next to cells updated per second.
-    BenchInsert(host_sim::bench_insert::BenchInsertArgs),
+    BenchInsert(host_sim::eval::bench_insert::BenchInsertArgs),
     /// The main job: map the embedded default world online and score it against ground truth.
     Demo {
         /// Output directory for PNGs and report.json.
@@ -66,10 +66,10 @@ enum Commands {
         firmware_bounds: bool,
     },
     /// The paper's hardware protocol on a real CARMEN log (benchmark, experiments 1-3).
-    EvalLog(host_sim::eval_log::EvalLogArgs),
+    EvalLog(host_sim::eval::eval_log::EvalLogArgs),
     /// Export a map as ROS map_server PGM + YAML and PNG (from a log, a probability PNG or a
     /// ground-truth map).
-    Export(host_sim::map_export::ExportArgs),
+    Export(host_sim::export::ExportArgs),
     /// Merali & Barfoot's Fig. 2: the 1-D example's exact posterior next to traditional OGM and
     /// the samplers (SVG plots and exact_1d.json).
     #[command(name = "exact-1d")]
@@ -84,16 +84,16 @@ enum Commands {
     /// Train the data-driven patch prior on the real-map corpus and regenerate its tables.
     TrainPrior {
         /// Training corpus (HouseExpo + ROS maps; never the sim maps).
-        #[arg(long, default_value_os_t = host_sim::prior::default_corpus_dir())]
+        #[arg(long, default_value_os_t = host_sim::eval::prior::default_corpus_dir())]
         corpus: PathBuf,
         /// Generated ogm-core table.
-        #[arg(long, default_value_os_t = host_sim::prior::default_core_table_path())]
+        #[arg(long, default_value_os_t = host_sim::eval::prior::default_core_table_path())]
         core_out: PathBuf,
         /// Generated host-side L = 25 table.
-        #[arg(long, default_value_os_t = host_sim::prior::default_l25_table_path())]
+        #[arg(long, default_value_os_t = host_sim::eval::prior::default_l25_table_path())]
         l25_out: PathBuf,
         /// Worker threads (the result does not depend on it).
-        #[arg(long, default_value_t = host_sim::prior::train::default_threads())]
+        #[arg(long, default_value_t = host_sim::eval::prior::train::default_threads())]
         threads: usize,
         /// Compare with the committed tables instead of writing them; fail on a difference.
         #[arg(long)]
@@ -108,7 +108,7 @@ enum Commands {
     /// Watch a robot over its serial link: decode the live map stream, keep the map, show the
     /// link counters, save PNG + ROS map_server PGM/YAML periodically and on Ctrl-C, send host
     /// messages, survive unplug/replug (docs/listen.md).
-    Listen(host_sim::listen::ListenArgs),
+    Listen(ogm_field::listen::ListenArgs),
     /// Statistics of the compiled patch prior next to the paper's.
     PriorStats {
         /// JSON instead of a table.
@@ -128,7 +128,7 @@ fn eval_sim(
     burn_in: u32,
     firmware_bounds: bool,
 ) -> anyhow::Result<()> {
-    use host_sim::sampling::{SamplingConfig, Variant};
+    use host_sim::eval::sampling::{SamplingConfig, Variant};
     let mut variants = Vec::new();
     let mut baselines = Vec::new();
     for m in methods
@@ -138,7 +138,7 @@ fn eval_sim(
     {
         match Variant::ALL.iter().find(|v| v.name() == m) {
             Some(v) => variants.push(*v),
-            None => match host_sim::baselines::Method::from_name(m) {
+            None => match host_sim::eval::baselines::Method::from_name(m) {
                 Some(b) => baselines.push(b),
                 None => anyhow::bail!("--methods: unknown method `{m}` (expected {}, mh, mh_heatmap, bp_sum, bp_max, dd or none)", Variant::ALL.map(|v| v.name()).join(", ")),
             },
@@ -150,17 +150,17 @@ fn eval_sim(
         ..SamplingConfig::default()
     };
     if firmware_bounds {
-        sampling = host_sim::eval::with_firmware_bounds(sampling);
+        sampling = host_sim::eval::eval_sim::with_firmware_bounds(sampling);
     }
-    let cfg = host_sim::eval::EvalConfig {
+    let cfg = host_sim::eval::eval_sim::EvalConfig {
         runs,
         seed,
         variants,
         sim: Default::default(),
         sampling,
         baselines,
-        baseline: host_sim::baselines::BaselineConfig {
-            model: host_sim::baselines::SensorModel::Gaussian {
+        baseline: host_sim::eval::baselines::BaselineConfig {
+            model: host_sim::eval::baselines::SensorModel::Gaussian {
                 sigma_cells: sampling.sigma_cells,
                 outlier_weight: sampling.outlier_weight,
             },
@@ -168,7 +168,7 @@ fn eval_sim(
             ..Default::default()
         },
     };
-    host_sim::eval::run_sim(maps, out, &cfg)
+    host_sim::eval::eval_sim::run_sim(maps, out, &cfg)
 }
 
 fn main() -> ExitCode {
@@ -178,7 +178,7 @@ fn main() -> ExitCode {
             out,
             seed,
             all_samplers,
-        } => host_sim::demo::run(&out, seed, all_samplers),
+        } => host_sim::eval::demo::run(&out, seed, all_samplers),
         Commands::EvalSim {
             maps,
             runs,
@@ -207,18 +207,18 @@ fn main() -> ExitCode {
             measure_walls,
         } => {
             if measure_walls {
-                host_sim::prior::measure_walls_cmd(&corpus)
+                host_sim::eval::prior::measure_walls_cmd(&corpus)
             } else {
-                host_sim::prior::train_prior_cmd(&corpus, &core_out, &l25_out, threads, check)
+                host_sim::eval::prior::train_prior_cmd(&corpus, &core_out, &l25_out, threads, check)
             }
         }
-        Commands::EvalLog(args) => host_sim::eval_log::run(&args),
-        Commands::Export(args) => host_sim::map_export::run(&args),
-        Commands::ExactOneD { out, seed } => host_sim::baselines::fig2::run(&out, seed),
-        Commands::PriorStats { json } => host_sim::prior::prior_stats_cmd(json),
+        Commands::EvalLog(args) => host_sim::eval::eval_log::run(&args),
+        Commands::Export(args) => host_sim::export::run(&args),
+        Commands::ExactOneD { out, seed } => host_sim::eval::baselines::fig2::run(&out, seed),
+        Commands::PriorStats { json } => host_sim::eval::prior::prior_stats_cmd(json),
         Commands::Firmware(args) => host_sim::firmware::cli(&args),
-        Commands::Listen(args) => host_sim::listen::cli(&args),
-        Commands::BenchInsert(args) => host_sim::bench_insert::cli(&args),
+        Commands::Listen(args) => ogm_field::listen::cli(&args),
+        Commands::BenchInsert(args) => host_sim::eval::bench_insert::cli(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

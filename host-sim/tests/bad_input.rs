@@ -6,13 +6,13 @@
 
 use std::path::Path;
 
-use host_sim::carmen::{parse_log, read_log, ReadOptions};
-use host_sim::world::load::{decode_image_bytes, parse_ros_yaml, ImageKind};
+use host_sim::sim::carmen::{parse_log, read_log, ReadOptions};
 use ogm_core::Range;
+use ogm_field::world::load::{decode_image_bytes, parse_ros_yaml, ImageKind};
 
 const GOOD: &str = "FLASER 5 1.0 2.0 3.0 4.0 5.0 0.5 0.5 0.1 0.5 0.5 0.1 1.0 host 1.0";
 
-fn parse(text: &str) -> host_sim::carmen::CarmenLog {
+fn parse(text: &str) -> host_sim::sim::carmen::CarmenLog {
     parse_log(
         text.as_bytes(),
         &ReadOptions {

@@ -2,13 +2,15 @@
 //! the L = 1 Gibbs sampler converge to the exact 1-D posterior, DD and max-product find the
 //! enumerated MAP on a tiny loopy problem.
 
-use host_sim::baselines::bp::{self, BpConfig, BpKind};
-use host_sim::baselines::dd::{self, DdConfig};
-use host_sim::baselines::exact::{enumerate, enumerate_first_occupied, kl_per_cell};
-use host_sim::baselines::factor_graph::{FactorGraph, FactorSpec, UnaryPrior};
-use host_sim::baselines::{build_graph, fig2, mh, run_method, BaselineConfig, Method, SensorModel};
-use host_sim::explore::ScanRecord;
-use host_sim::sampling::{run_sampler, SamplingConfig, Variant};
+use host_sim::eval::baselines::bp::{self, BpConfig, BpKind};
+use host_sim::eval::baselines::dd::{self, DdConfig};
+use host_sim::eval::baselines::exact::{enumerate, enumerate_first_occupied, kl_per_cell};
+use host_sim::eval::baselines::factor_graph::{FactorGraph, FactorSpec, UnaryPrior};
+use host_sim::eval::baselines::{
+    build_graph, fig2, mh, run_method, BaselineConfig, Method, SensorModel,
+};
+use host_sim::eval::sampling::{run_sampler, SamplingConfig, Variant};
+use host_sim::sim::explore::ScanRecord;
 use ogm_core::reference::ReferenceModel;
 use ogm_core::sampler::ray_store::{RayStore, StoredRay, StoredScan};
 use ogm_core::{Angle, Beam, GridGeometry, LogOdds, MapperConfig, Pose, Range};

@@ -6,17 +6,18 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use host_sim::carmen::{
-    flaser_angles_deg, parse_log, read_log, CarmenLog, MaxRangeSource, ReadOptions,
-};
-use host_sim::eval_log::{
+use host_sim::eval::eval_log::{
     benchmark_truth, log_geometry, map_scans, Experiment, ReplaySensor, BENCHMARK_THRESHOLD,
 };
-use host_sim::explore::ScanRecord;
-use host_sim::map_export::{export_world, probabilities_from_png};
+use host_sim::export::probabilities_from_png;
+use host_sim::sim::carmen::{
+    flaser_angles_deg, parse_log, read_log, CarmenLog, MaxRangeSource, ReadOptions,
+};
+use host_sim::sim::explore::ScanRecord;
 use host_sim::sim::{new_mapper, probabilities};
-use host_sim::world::{load_world, probabilities_to_world, Truth};
 use ogm_core::{Angle, Beam, MapperConfig, Pose, Range, RangeSensor, ScanBuf};
+use ogm_field::export::export_world;
+use ogm_field::world::{load_world, probabilities_to_world, Truth};
 
 /// `n` readings, the pose and the standard FLASER tail.
 fn flaser(ranges: &[f64], x: f64, y: f64, th: f64) -> String {
@@ -635,7 +636,7 @@ fn ros_export_round_trip() {
 
     // A probability PNG read back: within 1/255, rows flipped back.
     let p = dir.path().join("p.png");
-    host_sim::render::probability_png(&p, &probs, w, h).unwrap();
+    host_sim::eval::render::probability_png(&p, &probs, w, h).unwrap();
     let (back, bw, bh) = probabilities_from_png(&p, None).unwrap();
     assert_eq!((bw, bh), (w, h));
     for (a, b) in probs.iter().zip(&back) {
@@ -645,15 +646,15 @@ fn ros_export_round_trip() {
     let imgs = vec![
         (
             "a",
-            host_sim::render::probability_image(&probs, w, h).unwrap(),
+            host_sim::eval::render::probability_image(&probs, w, h).unwrap(),
         ),
         (
             "b",
-            host_sim::render::probability_image(&vec![1.0; w * h], w, h).unwrap(),
+            host_sim::eval::render::probability_image(&vec![1.0; w * h], w, h).unwrap(),
         ),
     ];
     let s = dir.path().join("s.png");
-    host_sim::render::side_by_side_png(&s, &imgs).unwrap();
+    host_sim::eval::render::side_by_side_png(&s, &imgs).unwrap();
     assert_eq!(probabilities_from_png(&s, Some((0, 2))).unwrap().0, back);
     assert!(probabilities_from_png(&s, Some((1, 2)))
         .unwrap()

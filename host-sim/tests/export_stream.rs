@@ -4,8 +4,8 @@
 
 use std::process::Command;
 
-use host_sim::world::{load_world, Truth};
 use ogm_core::wire::{DeviceMsg, Layer, Tile};
+use ogm_field::world::{load_world, Truth};
 
 mod stream_fixture;
 use stream_fixture::{frame, half_free_tile, hello_and_config, EDGE, W};

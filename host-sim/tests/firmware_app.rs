@@ -2,12 +2,13 @@
 //! the host: its protocol behaviour without QEMU — settings, errors and their documented
 //! details, and a run whose stream rebuilds exactly the engine's map.
 
+use host_sim::firmware::input::scan_packets;
 use host_sim::firmware::HostMemory;
-use host_sim::link::{host_frame, scan_packets, DeviceEvent, StreamDecoder, StreamedMap};
 use ogm_core::config::{Budget, RunConfig};
 use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::wire::{self, ConfigFault, ErrorCode, HostMsg, LinkFault, TileSource};
 use ogm_core::{Angle, Beam, Pose, Range};
+use ogm_field::stream::{host_frame, DeviceEvent, StreamDecoder, StreamedMap};
 use ogm_firmware::sizes::MPS2_AN386 as FW;
 use ogm_firmware::{Fed, Platform, Work};
 

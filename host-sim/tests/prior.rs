@@ -4,9 +4,9 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
-use host_sim::prior::codegen::{emit_core_table, emit_l25_table, CoreTables, PruneParams};
-use host_sim::prior::train::{train, Corpus};
-use host_sim::prior::{HOUSEEXPO_M_PER_PX, L25};
+use host_sim::eval::prior::codegen::{emit_core_table, emit_l25_table, CoreTables, PruneParams};
+use host_sim::eval::prior::train::{train, Corpus};
+use host_sim::eval::prior::{HOUSEEXPO_M_PER_PX, L25};
 use ogm_core::sampler::patch::Dihedral;
 use ogm_core::sampler::prior::{self, log_prior_of_probability, PriorSource};
 

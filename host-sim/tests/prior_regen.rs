@@ -8,9 +8,9 @@ use std::io::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
-use host_sim::prior::codegen::{emit_core_table, emit_l25_table, PruneParams};
-use host_sim::prior::train::{default_threads, train, Corpus};
-use host_sim::prior::{default_core_table_path, default_corpus_dir, default_l25_table_path};
+use host_sim::eval::prior::codegen::{emit_core_table, emit_l25_table, PruneParams};
+use host_sim::eval::prior::train::{default_threads, train, Corpus};
+use host_sim::eval::prior::{default_core_table_path, default_corpus_dir, default_l25_table_path};
 
 fn say(msg: &str) {
     let _ = writeln!(std::io::stderr(), "{msg}");

@@ -7,11 +7,11 @@
 use std::process::Command;
 
 use base64::Engine;
-use host_sim::listen::{Listener, Notice};
 use ogm_core::types::scan::{Beam, Range};
 use ogm_core::wire::{self, DeviceMsg, Layer, ScanRanges, ScanReport, Tile};
 use ogm_core::Angle;
 use ogm_core::Pose;
+use ogm_field::listen::{Listener, Notice};
 
 mod stream_fixture;
 use stream_fixture::{frame, half_free_tile, hello_and_config, EDGE, W};
@@ -245,7 +245,7 @@ fn a_live_view_serves_the_listened_maps_and_poses() {
     let mut req = format!("ws://{addr}").into_client_request().unwrap();
     req.headers_mut().insert(
         "Sec-WebSocket-Protocol",
-        host_sim::live::SUBPROTOCOL.parse().unwrap(),
+        ogm_field::live::SUBPROTOCOL.parse().unwrap(),
     );
     let (mut ws, _) = tungstenite::connect(req).unwrap();
     let mut texts = Vec::new();

@@ -1,8 +1,7 @@
 //! Online insertion throughput: cells updated per second by `Mapper::insert_scan` (fixed point)
 //! and `reference::ReferenceMapper` (f64) on the same synthetic indoor scans.
 //!
-//! `cargo bench -p ogm-core --bench insert` (results and discussion: docs/benchmarks.md,
-//! "Online insertion", and docs/insertion.md).
+//! `cargo bench -p ogm-core --bench insert` (results and discussion: docs/performance.md).
 //!
 //! Input: a 500 × 500 map of 5 cm cells (25 m square); a 10 m × 7 m flat (outer walls, two inner
 //! walls with doorways, furniture, an open door in the outer wall) ray-cast in f64 from poses drawn

@@ -50,7 +50,7 @@ fn link<const N: usize>(bytes: &[u8]) -> Delivered {
                 ..
             } => scans.push((pose, beams.to_vec(), overflow)),
             Step::Error(e) => errors.push(e),
-            Step::Config(_) | Step::Finish | Step::Idle { .. } | Step::Pose { .. } => {}
+            Step::Host(_) => {}
         });
     }
     rx.finish(|s| {

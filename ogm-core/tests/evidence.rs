@@ -249,6 +249,10 @@ fn raster_runs_the_same_chain_however_the_budget_is_split() {
         left -= n;
     }
     assert_eq!(a.stats(), b.stats());
+    assert_eq!(
+        (a.rays_examined(), a.rays_gathered()),
+        (b.rays_examined(), b.rays_gathered())
+    );
     assert!(
         a.stats().sweeps > 0 && a.stats().changed > 0,
         "{:?}",

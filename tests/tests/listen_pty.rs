@@ -30,21 +30,21 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use host_sim::firmware::input::{encode_run, send_lines, RunInput, Unit, UnitKind};
 use host_sim::firmware::{
     build_elf, firmware_world, replay_map, repo_root, run_config, sim_config, FirmwareArgs,
 };
-use host_sim::link::{
-    decode_file, encode_run, DeviceEvent, RunInput, StreamDecoder, Unit, UnitKind,
-};
-use host_sim::listen::{
-    counts_of_one, open_port, run, send_lines, stream_probabilities, Control, Gap, ListenArgs,
-    ListenStats, Listener, MapLayer, CAPTURE_FILE,
-};
-use host_sim::map_export::export_world;
-use host_sim::world::load::{DEFAULT_FREE_THRESH, DEFAULT_OCCUPIED_THRESH};
-use host_sim::world::probabilities_to_world;
 use ogm_core::config::RunConfig;
 use ogm_core::wire::HostMsg;
+use ogm_field::export::export_world;
+use ogm_field::listen::{
+    open_port, run, Control, Gap, ListenArgs, ListenStats, Listener, CAPTURE_FILE,
+};
+use ogm_field::stream::{
+    counts_of_one, decode_file, stream_probabilities, DeviceEvent, MapLayer, StreamDecoder,
+};
+use ogm_field::world::load::{DEFAULT_FREE_THRESH, DEFAULT_OCCUPIED_THRESH};
+use ogm_field::world::probabilities_to_world;
 
 const SCANS: usize = 8;
 

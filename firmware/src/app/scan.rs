@@ -68,11 +68,13 @@ impl<S: Storage> State<'_, S> {
         platform: &mut P,
     ) -> After {
         match step {
-            Step::Config(c) => {
+            Step::Host(wire::HostMsg::Config(c)) => {
                 self.apply(lidar, link, platform, c);
                 After::Nothing
             }
-            Step::Pose { t_us, pose } => self.on_pose(lidar, link, platform, t_us, pose),
+            Step::Host(wire::HostMsg::Pose { t_us, pose }) => {
+                self.on_pose(lidar, link, platform, t_us, pose)
+            }
             Step::Scan {
                 seq,
                 pose,
@@ -90,10 +92,14 @@ impl<S: Storage> State<'_, S> {
                 self.process_scan(link, platform, &scan);
                 After::Scan(seq)
             }
-            Step::Finish => After::Finish,
-            Step::Idle { seq, period_us } => {
+            Step::Host(wire::HostMsg::Finish) => After::Finish,
+            Step::Host(wire::HostMsg::Idle { seq, period_us }) => {
                 self.idle(link, platform, seq, period_us);
                 After::Idle(seq)
+            }
+            // `LinkRx` turns the scan framing into `Step::Scan`; it never hands it on.
+            Step::Host(wire::HostMsg::ScanStart { .. } | wire::HostMsg::ScanEnd { .. }) => {
+                After::Nothing
             }
             Step::Error(e) => {
                 let (code, detail) = e.code();

@@ -174,8 +174,7 @@ impl<S: Storage> State<'_, S> {
             ns(t.sampler_ticks) * 1000 / t.updates.max(1)
         );
         if let Some(m) = self.session.as_deref() {
-            info!("sampler: {}", m.gibbs().stats());
-            info!("ray store: {}", m.store().stats());
+            info!("sampler: {}", m.sampler_report());
         }
     }
 }

@@ -29,6 +29,7 @@
 //! packets (a CRC failure with a new header inside: the packet was cut short) and bytes skipped
 //! ([`Ld06Counters`]).
 
+use crate::lidar::encode::EncodeError;
 use crate::lidar::source::{RangeSensor, ReadError};
 use crate::types::angle::Angle;
 use crate::types::scan::{Beam, Range, ScanBuf};
@@ -482,21 +483,6 @@ impl<R: embedded_io::Read> RangeSensor for Ld06Reader<R> {
                 return Ok(());
             }
         }
-    }
-}
-
-/// Why [`encode_scan`] refused.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-#[non_exhaustive]
-pub enum EncodeError {
-    /// The number of beams is not a multiple of 12.
-    NotMultipleOf12,
-}
-
-impl core::fmt::Display for EncodeError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str("LD06: a scan needs a multiple of 12 beams")
     }
 }
 

@@ -1,6 +1,7 @@
 //! The robot's receive side: one UART carries the lidar's LD06 packets *and* the host's frames
 //! (poses, settings), and [`LinkDemux`] separates them; [`LinkRx`] then turns them into
-//! complete scans with their poses. Sans-IO: feed it whatever bytes arrived. The firmware and the
+//! complete scans with their poses and hands the host's other messages on as they are
+//! ([`Step::Host`]). Sans-IO: feed it whatever bytes arrived. The firmware and the
 //! host's replay run this same code on the same bytes, so they see the same scans.
 //!
 //! ## Telling the two apart
@@ -27,7 +28,6 @@
 //! `ScanEnd` for the scan just delivered (same `seq`, no scan open); the firmware ignores a
 //! `Config` equal to the one it runs with.
 
-use crate::config::RunConfig;
 use crate::lidar::ld06::{Ld06Error, Packet, HEADER, PACKET_LEN, POINTS, VER_LEN};
 use crate::types::geometry::Pose;
 use crate::types::scan::{Beam, ScanBuf};
@@ -302,11 +302,15 @@ impl LinkDemux {
     }
 }
 
-/// What [`LinkRx`] delivers.
+/// What [`LinkRx`] delivers: the host's messages as they are, except the scan framing, which
+/// it turns into complete scans.
 #[derive(Debug, PartialEq, Eq)]
 pub enum Step<'s> {
-    /// The host's settings.
-    Config(RunConfig),
+    /// A host message other than the scan framing: [`HostMsg::Config`], [`HostMsg::Pose`] (for
+    /// the lidar turns read on the robot's own UART, [`crate::lidar::turn::Turns`]),
+    /// [`HostMsg::Idle`] (a repeat of the last period's frame is not delivered again) or
+    /// [`HostMsg::Finish`]. Never `ScanStart` or `ScanEnd`: those make a [`Step::Scan`].
+    Host(HostMsg),
     /// A complete scan.
     Scan {
         /// Its sequence number.
@@ -317,24 +321,6 @@ pub enum Step<'s> {
         beams: &'s [Beam],
         /// Beams that did not fit the scan buffer.
         overflow: u32,
-    },
-    /// The host has no more scans.
-    Finish,
-    /// Sample for `period_us` of board time ([`HostMsg::Idle`]; a repeat of the last period's
-    /// frame is not delivered again).
-    Idle {
-        /// Idle period number.
-        seq: u32,
-        /// Board time, µs.
-        period_us: u32,
-    },
-    /// A timestamped robot pose ([`HostMsg::Pose`]) for the lidar turns read on the robot's
-    /// own UART ([`crate::lidar::turn::Turns`]).
-    Pose {
-        /// Time, µs of the lidar clock.
-        t_us: u64,
-        /// The robot's pose.
-        pose: Pose,
     },
     /// A problem (already counted); processing goes on.
     Error(LinkError),
@@ -453,11 +439,11 @@ impl LinkRx {
                     f(Step::Error(LinkError::ScanSequence { seq }));
                 }
             },
-            LinkEvent::Host(HostMsg::Config(c)) => f(Step::Config(c)),
-            LinkEvent::Host(HostMsg::Idle { seq, period_us }) => {
+            LinkEvent::Host(msg @ HostMsg::Config(_)) => f(Step::Host(msg)),
+            LinkEvent::Host(msg @ HostMsg::Idle { seq, .. }) => {
                 if *idle != Some(seq) {
                     *idle = Some(seq);
-                    f(Step::Idle { seq, period_us });
+                    f(Step::Host(msg));
                 }
             }
             LinkEvent::Host(HostMsg::Finish) => {
@@ -465,9 +451,9 @@ impl LinkRx {
                     bump(seq_errors);
                     f(Step::Error(LinkError::ScanSequence { seq: old }));
                 }
-                f(Step::Finish);
+                f(Step::Host(HostMsg::Finish));
             }
-            LinkEvent::Host(HostMsg::Pose { t_us, pose }) => f(Step::Pose { t_us, pose }),
+            LinkEvent::Host(msg @ HostMsg::Pose { .. }) => f(Step::Host(msg)),
             LinkEvent::Error(e) => f(Step::Error(e)),
         });
     }
@@ -489,7 +475,7 @@ impl LinkRx {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::Budget;
+    use crate::config::{Budget, RunConfig};
     use crate::lidar::ld06::{encode_scan, theta_cdeg};
     use crate::types::scan::Range;
     use crate::wire::encode;
@@ -545,6 +531,7 @@ mod tests {
                     Step::Scan {
                         seq, pose, beams, ..
                     } => format!("scan {seq} {} {}", pose.x_mm, beams.len()),
+                    Step::Host(m) => format!("{m:?}"),
                     other => format!("{other:?}"),
                 })
             });

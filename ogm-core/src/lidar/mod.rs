@@ -4,6 +4,7 @@
 //! (the one way scans reach the session: [`source`] says why), and the blocking [`source`]
 //! traits that only host tools still use.
 
+pub mod encode;
 pub mod ld06;
 pub mod link;
 pub mod pose_track;

@@ -1,6 +1,6 @@
 //! Online mapping ("traditional OGM"): the log-odds grid in caller memory, integer rays,
 //! inverse sensor models and the mapper that inserts a scan (hits win within a scan).
-//! Imports [`crate::types`] only.
+//! Imports [`crate::types`] and [`crate::error`] only.
 
 pub mod grid;
 pub mod mapper;

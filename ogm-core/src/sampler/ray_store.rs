@@ -13,12 +13,13 @@
 //! every stored scan drops every second ray and new scans are decimated by the same (doubled)
 //! factor; if the scan array is full every second scan is dropped. Both keep spatial coverage,
 //! which the sampler needs more than density (the papers' sparse-data experiments show the
-//! sampler does well with thinned data). Everything dropped is counted in [`StoreStats`].
+//! sampler does well with thinned data). Everything dropped is counted in [`RayStore::stats`].
 
 use crate::error::{Error, Result};
 use crate::map::ray::Ray;
 use crate::types::geometry::{CellCoord, GridGeometry, Pose};
 use crate::types::scan::{Beam, Range};
+use crate::wire::StoreReport;
 use crate::Angle;
 
 /// Marker for "no return" in [`StoredRay::z_q4`] and "no occupied cell" in
@@ -67,24 +68,6 @@ pub struct RayGeometry {
     pub step_q12: u32,
 }
 
-/// Counters of what the store did.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct StoreStats {
-    /// Scans accepted.
-    pub scans_added: u32,
-    /// Rays accepted.
-    pub rays_added: u32,
-    /// Beams not stored because of the current decimation.
-    pub rays_decimated: u32,
-    /// Rays removed later by thinning.
-    pub rays_thinned: u32,
-    /// Beams dropped as invalid (closer than the minimum range).
-    pub rays_invalid: u32,
-    /// Times the store halved its rays or scans.
-    pub thinnings: u32,
-}
-
 /// The bounded ray store over caller storage.
 #[derive(Clone, Debug)]
 pub struct RayStore<S, R> {
@@ -96,7 +79,9 @@ pub struct RayStore<S, R> {
     n_scans: usize,
     n_rays: usize,
     decimation: u32,
-    stats: StoreStats,
+    /// The counters of what the store did; [`RayStore::stats`] fills in the rest (decimation
+    /// and fill), which stays zero here.
+    stats: StoreReport,
 }
 
 /// Length (Q8 cells) of the vector (dx, dy); exact below 2^16 cells per component, within a
@@ -164,10 +149,7 @@ where
         }
         // The sampler's short-ray arithmetic needs rays of at most MAX_STEPS steps.
         let reach = max_range_mm.div_ceil(geometry.cell_mm());
-        if max_range_mm == 0
-            || min_range_mm >= max_range_mm
-            || reach >= MAX_STEPS - 2
-        {
+        if max_range_mm == 0 || min_range_mm >= max_range_mm || reach >= MAX_STEPS - 2 {
             return Err(Error::InvalidModel);
         }
         Ok(RayStore {
@@ -179,7 +161,7 @@ where
             n_scans: 0,
             n_rays: 0,
             decimation: 1,
-            stats: StoreStats::default(),
+            stats: StoreReport::default(),
         })
     }
 
@@ -193,9 +175,15 @@ where
         self.max_range_mm
     }
 
-    /// Counters.
-    pub fn stats(&self) -> StoreStats {
-        self.stats
+    /// What the store did (beams accepted, decimated, thinned, invalid) and holds now, as the
+    /// wire reports it.
+    pub fn stats(&self) -> StoreReport {
+        StoreReport {
+            decimation: self.decimation,
+            scans: self.scans().len() as u32,
+            rays: self.rays().len() as u32,
+            ..self.stats
+        }
     }
 
     /// Current decimation (1 = every beam is stored).
@@ -538,6 +526,10 @@ mod tests {
         assert_eq!(s.stats().rays_thinned, 20);
         assert_eq!(s.stats().rays_decimated, 5);
         assert_eq!(s.stats().thinnings, 1);
+        assert_eq!(
+            (s.stats().decimation, s.stats().scans, s.stats().rays),
+            (2, 5, 25)
+        );
         // Scans stay contiguous and in order.
         let mut next = 0;
         for sc in s.scans() {

@@ -42,7 +42,7 @@ pub use insert::Inserted;
 use crate::config::RunConfig;
 use crate::sampler::gibbs::{self, BorderPrior, Count, Gibbs, LocalRay};
 use crate::sampler::ray_store::{RayStore, StoredRay, StoredScan};
-use crate::wire::{SamplerReport, StoreReport};
+use crate::wire::SamplerReport;
 use crate::{Beam, GridGeometry, LogOdds, LogOddsGrid, Mapper, Pose};
 
 /// The memory of a [`Session`]: one type naming every buffer's type (each a slice-like owner:
@@ -334,13 +334,11 @@ impl<S: Storage> Session<S> {
 
     /// The sampler and store statistics as the wire reports them.
     pub fn sampler_report(&self) -> SamplerReport {
-        let store = StoreReport::new(
-            &self.store.stats(),
-            self.store.decimation(),
-            self.store.scans().len(),
-            self.store.rays().len(),
-        );
-        SamplerReport::new(&self.gibbs.stats(), self.gibbs.samples(), store)
+        SamplerReport {
+            samples: self.gibbs.samples(),
+            store: self.store.stats(),
+            ..self.gibbs.stats()
+        }
     }
 }
 

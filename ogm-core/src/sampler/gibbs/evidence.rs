@@ -17,6 +17,10 @@
 //! unbounded. [`DataTerm::Hybrid`] adds this term, scaled by the share of beams the ray store
 //! has dropped, to the rays' forward-model likelihood, so thinning the store loses nothing.
 
+use rand_core::Rng;
+
+use super::update::{below, weight_q16};
+use super::{Count, Gibbs, LocalRay, PatchCandidate, PatchPrior, MAX_CANDIDATES};
 use crate::types::fixed::LogOdds;
 use crate::types::geometry::CellCoord;
 
@@ -184,6 +188,130 @@ pub(crate) fn patch_evidence(
     }
     (e.known, e.occupied) = (known as u16, occupied as u16);
     e
+}
+
+impl<P, B, C, L, K, N> Gibbs<P, B, C, L, K, N>
+where
+    P: PatchPrior,
+    N: Count,
+    B: AsRef<[u32]> + AsMut<[u32]>,
+    C: AsRef<[N]> + AsMut<[N]>,
+    L: AsRef<[LocalRay]> + AsMut<[LocalRay]>,
+    K: AsRef<[u32]> + AsMut<[u32]>,
+{
+    /// [`DataTerm::Evidence`]'s update straight from the prior's flash tables (the hot path on
+    /// the robot: no candidate copies, no ray work). The same distribution as the general path:
+    /// candidates are the top-k of `configs` plus, with [`SamplerConfig::data_candidate`], the
+    /// evidence's own configuration at the floor log-prior; weights are log-prior + evidence.
+    /// Returns the new configuration (and updates the estimates), and whether it was the only
+    /// candidate (the caller counts those in [`SamplerReport::single_candidate`]).
+    ///
+    /// [`DataTerm::Evidence`]: crate::config::DataTerm::Evidence
+    /// [`SamplerConfig::data_candidate`]: super::SamplerConfig::data_candidate
+    /// [`SamplerReport::single_candidate`]: crate::wire::SamplerReport::single_candidate
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn evidence_update(
+        &mut self,
+        map: &[LogOdds],
+        centre: CellCoord,
+        current: u16,
+        (known, occupied): (u16, u16),
+        configs: &'static [u16],
+        log_priors: &'static [i16],
+    ) -> (u16, bool) {
+        let k = usize::from(self.ev_k)
+            .min(configs.len())
+            .min(log_priors.len());
+        let (configs, log_priors) = (
+            configs.get(..k).unwrap_or(&[]),
+            log_priors.get(..k).unwrap_or(&[]),
+        );
+        // The evidence's own configuration, a candidate (at the floor log-prior) when the
+        // prior's top-k lacks it: checked against the first candidate here, and against the
+        // others in the weights' pass (it is only needed where there are weights).
+        let data_candidate = self.config.data_candidate;
+        let d = (current & !known) | occupied;
+        let first = configs.first().copied().unwrap_or(current);
+        if k <= 1 && (!data_candidate || (k == 1 && first == d)) {
+            self.average_config(centre, first);
+            return (first, true);
+        }
+        let floor = i32::from(self.config.floor_log_prior);
+        // The patch's log-odds, read only now that weights are needed, and only if a cell has
+        // any (unobserved patches, common in the uniform share of tile visits, weigh by the
+        // prior alone).
+        let ev = if known != 0 {
+            PatchTerms::new(
+                map,
+                usize::from(self.geometry.width()),
+                centre,
+                self.ev_gain,
+                self.ev_free_gain,
+            )
+        } else {
+            PatchTerms::default()
+        };
+        // Log-weights, the extra candidate last, and the best of them in the same pass; then,
+        // in place, the weights (`weights_q16`'s, one array instead of two). The array is the
+        // sampler's scratch: only its first `n` entries are read, each written first (a local
+        // array would be zeroed on every update).
+        let q = &mut self.scratch;
+        let mut best = i32::MIN;
+        let mut listed = false;
+        for ((qi, &c), &lp) in q.iter_mut().zip(configs).zip(log_priors) {
+            let w = i32::from(lp) + ev.of(c);
+            best = best.max(w);
+            *qi = w as u32;
+            listed |= c == d;
+        }
+        let extra = (data_candidate && !listed).then_some(d);
+        let n = match extra {
+            Some(d) => {
+                let w = floor + ev.of(d);
+                best = best.max(w);
+                if let Some(qi) = q.get_mut(k) {
+                    *qi = w as u32;
+                }
+                k + 1
+            }
+            None => k,
+        };
+        // `weights_q16`'s loop, in place, without its saturation: a log-weight is an i16
+        // log-prior plus nine cells' |log-odds| ≤ 2^15 times a gain ≤ 2^16 (Q8), so `best − w`
+        // is below 2^29, and the sum of at most 17 weights ≤ 2^16 is below 2^21.
+        let mut total = 0u32;
+        for qi in q.iter_mut().take(n) {
+            *qi = weight_q16(best.wrapping_sub(*qi as i32) as u32);
+            total = total.wrapping_add(*qi);
+        }
+        let config_of = |j: usize| configs.get(j).copied().or(extra).unwrap_or(current);
+        let mut r = below(self.rng.next_u32(), total.max(1));
+        let mut new = first;
+        for (j, &qj) in q.iter().take(n).enumerate() {
+            if r < qj {
+                new = config_of(j);
+                break;
+            }
+            r -= qj;
+        }
+        if cfg!(feature = "rao-blackwell") && self.config.estimator.rao_blackwellised() {
+            let mut cands = [PatchCandidate::default(); MAX_CANDIDATES + 1];
+            for (j, c) in cands.iter_mut().enumerate().take(n) {
+                c.config = config_of(j);
+            }
+            let q = self.scratch;
+            self.rao_blackwell(
+                centre,
+                cands.get(..n).unwrap_or(&[]),
+                q.get(..n).unwrap_or(&[]),
+                total,
+                new,
+            );
+        } else {
+            self.average_config(centre, new);
+        }
+        (new, false)
+    }
 }
 
 #[cfg(test)]

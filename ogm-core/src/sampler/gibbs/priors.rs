@@ -1,9 +1,45 @@
-//! The patch priors p(a_k | border) the sampler can use (Eq. 1's first factor): the three
-//! variants of the paper's Table II.
+//! The patch priors p(a_k | border) the sampler can use (Eq. 1's first factor): the interface
+//! ([`PatchPrior`]) and the three variants of the paper's Table II.
 
-use super::{PatchCandidate, PatchPrior};
 use crate::error::{Error, Result};
 use crate::types::fixed::LogOdds;
+
+/// A candidate configuration with its log-prior (LSB units of [`crate::types::fixed::LSB_NATS`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PatchCandidate {
+    /// Bit `size·r + c` = cell (column c, row r) of the patch, row 0 at the bottom.
+    pub config: u16,
+    /// log p(config | border) in LSB; only differences between candidates matter.
+    pub log_prior: i32,
+}
+
+/// The patch prior p(a_k | border) of Eq. 1.
+pub trait PatchPrior {
+    /// Patch edge: 1 (L = 1) or 3 (L = 9).
+    fn size(&self) -> u8;
+    /// Cells around patch centres that must lie inside the map so the border can be read:
+    /// 2 for a 3×3 patch with a 16-cell border, 1 for a cell with 8 neighbours, 0 if the prior
+    /// ignores the border.
+    fn margin(&self) -> u8;
+    /// Writes candidates for `border` (the 16-cell border of a 3×3 patch, or the 8-neighbour byte
+    /// of a cell, in [`crate::sampler::patch`]'s bit order) into `out`, most probable first, and returns
+    /// how many were written: at least 1 whenever `out` is not empty.
+    fn candidates(&self, border: u16, out: &mut [PatchCandidate]) -> usize;
+    /// [`PatchPrior::candidates`] for the sampler, which may remember results (the default does
+    /// not): the same candidates for the same `border` and `out.len()`.
+    #[inline]
+    fn candidates_cached(&mut self, border: u16, out: &mut [PatchCandidate]) -> usize {
+        self.candidates(border, out)
+    }
+    /// The candidates of `border` as static tables (configurations, log-priors; most probable
+    /// first), when the prior stores them that way: lets the sampler's hot path read flash
+    /// directly instead of copying. `None` (the default): use [`PatchPrior::candidates`].
+    #[inline]
+    fn table(&mut self, _border: u16) -> Option<(&'static [u16], &'static [i16])> {
+        None
+    }
+}
 
 /// L = 1 with a constant prior p(m_k) (merali-barfoot-mcmc-gibbs-ogm).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

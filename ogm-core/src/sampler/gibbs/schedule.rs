@@ -8,6 +8,13 @@
 //! uniform so the chain keeps visiting every tile (ergodicity is unaffected: every update is
 //! still an exact Gibbs step, only the order differs). Fixed memory: 128 bytes.
 
+use rand_core::Rng;
+
+use super::local::BlockGrid;
+use super::update::below;
+use super::{AverageShift, Count, Gibbs, LocalRay, PatchPrior};
+use crate::sampler::ray_store::{RayStore, StoredRay, StoredScan};
+
 /// Most tile groups tracked.
 pub(crate) const MAX_GROUPS: usize = 1024;
 
@@ -146,6 +153,76 @@ impl HotTiles {
             }
         }
         None
+    }
+}
+
+impl<P, B, C, L, K, N> Gibbs<P, B, C, L, K, N>
+where
+    P: PatchPrior,
+    N: Count,
+    B: AsRef<[u32]> + AsMut<[u32]>,
+    C: AsRef<[N]> + AsMut<[N]>,
+    L: AsRef<[LocalRay]> + AsMut<[LocalRay]>,
+    K: AsRef<[u32]> + AsMut<[u32]>,
+{
+    /// Picks a tile — a changed one for [`SamplerConfig::hot_share`] of the visits, else a
+    /// uniformly random one — and gathers the rays its patches can meet.
+    ///
+    /// [`SamplerConfig::hot_share`]: super::SamplerConfig::hot_share
+    pub(super) fn start_visit<S, R>(&mut self, store: &mut RayStore<S, R>)
+    where
+        S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
+        R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
+    {
+        let t = 1i32 << self.config.tile_shift;
+        let r = self.rng.next_u32();
+        // A visit takes a mark or ages a tile: either way the span's promise ends.
+        self.hot_span = (1, 0);
+        self.marked_cols = (u32::MAX, 0);
+        let hot = if (r & 0xff) < u32::from(self.config.hot_share) {
+            self.hot.take()
+        } else {
+            None
+        };
+        let (tx, ty) = match hot {
+            Some((gx, gy, edge)) => {
+                // A group of tiles on large maps: one of its tiles at random.
+                let (dx, dy) = if edge > 1 {
+                    (below(r >> 8 & 0xfff, edge), below(r >> 20, edge))
+                } else {
+                    (0, 0)
+                };
+                (
+                    ((gx + dx).min(self.tiles_x - 1)) as i32,
+                    ((gy + dy).min(self.tiles_y - 1)) as i32,
+                )
+            }
+            None => (
+                below(self.rng.next_u32(), self.tiles_x) as i32,
+                below(self.rng.next_u32(), self.tiles_y) as i32,
+            ),
+        };
+        self.visit_shift = AverageShift::new(
+            self.config
+                .estimator
+                .shift_at(self.hot.visit_age(tx as u32, ty as u32)),
+        );
+        let x0 = self.cx0 + tx * t;
+        let y0 = self.cy0 + ty * t;
+        let (x1, y1) = ((x0 + t - 1).min(self.cx1), (y0 + t - 1).min(self.cy1));
+        self.tile = (x0, y0, x1, y1);
+        let size = i32::from(self.prior.size());
+        let cells = ((x1 - x0 + 1) * (y1 - y0 + 1)) as u32;
+        self.visit_left =
+            (cells / (size * size) as u32).max(1) * u32::from(self.config.visit_sweeps.max(1));
+        self.stats.tile_visits += 1;
+        if self.config.data.uses_rays() {
+            let h = size / 2;
+            self.gather(
+                store,
+                BlockGrid::new(x0 - h, y0 - h, x1 + h, y1 + h, self.config.block_grid),
+            );
+        }
     }
 }
 

@@ -178,7 +178,7 @@ where
     }
 
     /// A raster run's random patch at `centre`: the gap to the next one (drawn first, as
-    /// [`super::random_patch_step`] does), then the patch; returns both. Not inlined: about one
+    /// `update::random_patch_step` does), then the patch; returns both. Not inlined: about one
     /// update in a thousand.
     #[inline(never)]
     fn raster_random<S, R>(
@@ -191,7 +191,7 @@ where
         S: AsRef<[StoredScan]> + AsMut<[StoredScan]>,
         R: AsRef<[StoredRay]> + AsMut<[StoredRay]>,
     {
-        let gap = super::next_gap(self.rand_period, &mut self.rng);
+        let gap = super::update::next_gap(self.rand_period, &mut self.rng);
         (self.random_patch(store, centre, current), gap)
     }
 
@@ -270,8 +270,12 @@ where
             debug_assert_eq!((current, border), self.config_and_border(centre));
             debug_assert_eq!(
                 {
-                    let e =
-                        super::patch_evidence(map, usize::from(self.geometry.width()), centre, 3);
+                    let e = super::evidence::patch_evidence(
+                        map,
+                        usize::from(self.geometry.width()),
+                        centre,
+                        3,
+                    );
                     (u32::from(e.known), u32::from(e.occupied))
                 },
                 (known, occupied)

@@ -1,0 +1,25 @@
+//! The researcher's: the evaluations and everything they compare, score and draw.
+//!
+//! * commands — [`demo`], [`eval_sim`] (`eval-sim`), [`eval_log`] (`eval-log`),
+//!   [`baselines::fig2`] (`exact-1d`), [`bench_insert`] (`bench-insert`), [`prior`]
+//!   (`train-prior`, `prior-stats`);
+//! * the methods — [`sampling`] (the Gibbs sampler variants on a recorded dataset, the host-only
+//!   L = 25 sampler) and [`baselines`] (the source papers' other inference methods);
+//! * scoring and output — [`metrics`], [`render`], [`report`], [`noise`] (the range noise
+//!   estimated from a log), [`progress`].
+//!
+//! Built on the simulator ([`crate::sim`]); nothing here depends on the firmware developer's
+//! [`crate::firmware`].
+
+pub mod baselines;
+pub mod bench_insert;
+pub mod demo;
+pub mod eval_log;
+pub mod eval_sim;
+pub mod metrics;
+pub mod noise;
+pub mod prior;
+pub mod progress;
+pub mod render;
+pub mod report;
+pub mod sampling;

@@ -1,0 +1,408 @@
+//! The firmware in QEMU: building the ELF, booting it in QEMU mps2-an386 with its UARTs on
+//! Unix sockets, feeding it the link (and in the robot loop the lidar's line), and reading its
+//! map stream back.
+
+use std::io::{Read, Write};
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, ensure, Context};
+use ogm_field::stream::{DeviceEvent, StreamDecoder};
+
+/// Boots `elf` in QEMU with UART1 (the link) on a Unix socket, sends `input`, returns the
+/// stream bytes, the exit status, the wall time and what the firmware wrote to the lidar. With
+/// `lidar`, UART0 is a second socket that carries its bytes, written by their own thread at
+/// their own pace (after the request the sensor answers, if it waits for one).
+pub(super) fn run_qemu(
+    elf: &Path,
+    input: &[u8],
+    lidar: Option<LidarLine<'_>>,
+    timeout: Duration,
+    log: Option<&Path>,
+) -> anyhow::Result<QemuRun> {
+    let root = repo_root();
+    let dir = std::env::temp_dir().join(format!("ogm-fw-{}-{}", std::process::id(), rand_seed()));
+    std::fs::create_dir_all(&dir)?;
+    let sock = dir.join("u1.sock");
+    let listener =
+        UnixListener::bind(&sock).with_context(|| format!("binding {}", sock.display()))?;
+    listener.set_nonblocking(true)?;
+    let sock0 = dir.join("u0.sock");
+    let listener0 = match &lidar {
+        Some(_) => Some(
+            UnixListener::bind(&sock0).with_context(|| format!("binding {}", sock0.display()))?,
+        ),
+        None => None,
+    };
+    let mut cmd = Command::new("bash");
+    cmd.arg(root.join("scripts/firmware.sh"))
+        .arg("qemu")
+        .arg(elf)
+        .args(["--timeout", &timeout.as_secs().max(1).to_string()])
+        .args(["--uart1", "chardev:u1"]);
+    if lidar.is_some() {
+        cmd.args(["--uart0", "chardev:u0"]);
+    }
+    cmd.arg("--");
+    if lidar.is_some() {
+        cmd.arg("-chardev")
+            .arg(format!("socket,id=u0,path={}", sock0.display()));
+    }
+    cmd.arg("-chardev")
+        .arg(format!("socket,id=u1,path={}", sock.display()));
+    cmd.stdin(Stdio::null());
+    if let Some(log) = log {
+        let f =
+            std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
+        cmd.stdout(Stdio::from(f.try_clone()?))
+            .stderr(Stdio::from(f));
+    }
+    let t0 = Instant::now();
+    let mut child = cmd.spawn().context("starting scripts/firmware.sh qemu")?;
+    let log_tail = || log.map(|l| tail(l, 40)).unwrap_or_default();
+    let mut accept = |listener: &UnixListener, path: &Path| -> anyhow::Result<UnixStream> {
+        loop {
+            match listener.accept() {
+                Ok((s, _)) => {
+                    s.set_nonblocking(false)?;
+                    return Ok(s);
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                    if let Some(st) = child.try_wait()? {
+                        let _ = std::fs::remove_dir_all(&dir);
+                        bail!(
+                            "QEMU exited ({st}) before connecting to {}:\n{}",
+                            path.display(),
+                            log_tail()
+                        );
+                    }
+                    if t0.elapsed() > Duration::from_secs(60) {
+                        let _ = child.kill();
+                        let _ = std::fs::remove_dir_all(&dir);
+                        bail!("QEMU did not connect to {} within 60 s", path.display());
+                    }
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+    };
+    let stream = accept(&listener, &sock)?;
+    let lidar_stream = match &listener0 {
+        Some(l) => {
+            l.set_nonblocking(true)?;
+            Some(accept(l, &sock0)?)
+        }
+        None => None,
+    };
+    let mut writer = stream.try_clone()?;
+    // Send only once the firmware has spoken (its Hello): its UART is initialised by then.
+    // Bytes that arrive earlier can meet the init's dummy read of the data register (board
+    // `Uart::new`, which QEMU needs to start delivering input) and be lost: seen once in ~20
+    // noisy-link runs as a lost first frame delimiter.
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
+    // The robot loop: both lines from this one thread in their schedule's order, as a robot's
+    // run in step; `Finish` only once the last turn is reported (a second go from the reader).
+    // The lidar's socket is handed back, not closed, when its bytes are written: QEMU's socket
+    // chardev drops a connection, and whatever of it is still unread, the moment the peer
+    // hangs up; it stays open until QEMU has exited.
+    let (finish_tx, finish_rx) = std::sync::mpsc::channel::<()>();
+    let last_turn = lidar.as_ref().map(|l| l.last_turn);
+    let data = input.to_vec();
+    let robot = lidar.map(|l| {
+        let bytes = l.bytes.to_vec();
+        let schedule = l.schedule.to_vec();
+        (bytes, schedule, l.finish.to_vec(), l.answers)
+    });
+    type Written = (Option<UnixStream>, Vec<u8>);
+    let writer = std::thread::spawn(move || -> std::io::Result<Written> {
+        let mut heard = Vec::new();
+        if ready_rx.recv().is_err() {
+            return Ok((lidar_stream, heard)); // the firmware never spoke; the reader reports it
+        }
+        match (robot, lidar_stream) {
+            (Some((bytes, schedule, finish, mut answers)), Some(mut w)) => {
+                for (line, r) in schedule {
+                    match line {
+                        super::robot::Line::Link => writer.write_all(&data[r])?,
+                        super::robot::Line::Lidar => {
+                            if let Some(req) = answers.take() {
+                                await_request(&mut w, req, &mut heard)?;
+                            }
+                            w.write_all(&bytes[r])?
+                        }
+                    }
+                }
+                if finish_rx.recv().is_ok() {
+                    writer.write_all(&finish)?;
+                }
+                Ok((Some(w), heard))
+            }
+            (_, w) => {
+                writer.write_all(&data)?;
+                Ok((w, heard))
+            }
+        }
+    });
+    let mut ready = Some(ready_tx);
+    let mut finish_go = Some(finish_tx);
+    let mut watch = StreamDecoder::new();
+    let mut reader = stream;
+    reader.set_read_timeout(Some(Duration::from_millis(200)))?;
+    let mut out = Vec::new();
+    let mut buf = [0u8; 16 * 1024];
+    let deadline = t0 + timeout + Duration::from_secs(10);
+    let mut status = None;
+    loop {
+        match reader.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => {
+                out.extend_from_slice(&buf[..n]);
+                if let Some(go) = ready.take() {
+                    let _ = go.send(());
+                }
+                if let Some(last) = last_turn {
+                    let reported = watch
+                        .push(&buf[..n])
+                        .into_iter()
+                        .any(|e| matches!(e, Ok(DeviceEvent::Scan(r)) if r.seq >= last));
+                    if reported {
+                        if let Some(go) = finish_go.take() {
+                            let _ = go.send(());
+                        }
+                    }
+                }
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                if let Some(st) = child.try_wait()? {
+                    status = Some(st);
+                    // Drain what is left.
+                    reader.set_nonblocking(true)?;
+                    while let Ok(n) = reader.read(&mut buf) {
+                        if n == 0 {
+                            break;
+                        }
+                        out.extend_from_slice(&buf[..n]);
+                    }
+                    break;
+                }
+                if Instant::now() > deadline {
+                    let _ = child.kill();
+                    break;
+                }
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => break,
+            Err(e) => return Err(e.into()),
+        }
+    }
+    if status.is_none() {
+        let wait_until = Instant::now() + Duration::from_secs(15);
+        loop {
+            if let Some(st) = child.try_wait()? {
+                status = Some(st);
+                break;
+            }
+            if Instant::now() > wait_until {
+                let _ = child.kill();
+                status = child.wait().ok();
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+    let secs = t0.elapsed().as_secs_f64();
+    drop(ready);
+    drop(finish_go);
+    let heard = match writer.join() {
+        Ok(Ok((_, heard))) => heard,
+        _ => Vec::new(),
+    };
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(QemuRun {
+        stream: out,
+        status,
+        secs,
+        heard,
+    })
+}
+
+/// What [`run_qemu`] returns.
+pub(super) struct QemuRun {
+    /// The map stream (UART1).
+    pub(super) stream: Vec<u8>,
+    /// QEMU's exit status (`None`: killed at the timeout).
+    pub(super) status: Option<ExitStatus>,
+    /// Wall time, s.
+    pub(super) secs: f64,
+    /// What the firmware wrote to the lidar (UART0) before the sensor's first byte.
+    pub(super) heard: Vec<u8>,
+}
+
+/// The robot loop's second serial line and its end: the lidar's bytes on UART0, the order
+/// the two lines carry their bytes in, and the `Finish` frame the link sends once the firmware
+/// has reported turn `last_turn`.
+pub(super) struct LidarLine<'a> {
+    pub(super) bytes: &'a [u8],
+    pub(super) schedule: &'a [(super::robot::Line, std::ops::Range<usize>)],
+    pub(super) finish: &'a [u8],
+    pub(super) last_turn: u32,
+    /// The request the sensor waits for before its first byte (an RPLIDAR's `SCAN`; an LD06
+    /// streams on its own).
+    pub(super) answers: Option<[u8; 2]>,
+}
+
+/// How long the simulated sensor waits for the request it answers (wall time).
+const REQUEST_WAIT: Duration = Duration::from_secs(30);
+
+/// Reads `line` until `request` arrived (or `REQUEST_WAIT` passed); every byte the firmware
+/// wrote to the sensor meanwhile goes to `heard`.
+fn await_request(
+    line: &mut UnixStream,
+    request: [u8; 2],
+    heard: &mut Vec<u8>,
+) -> std::io::Result<()> {
+    line.set_read_timeout(Some(Duration::from_millis(50)))?;
+    let t0 = Instant::now();
+    let mut buf = [0u8; 64];
+    while !heard.windows(2).any(|w| w == request) && t0.elapsed() < REQUEST_WAIT {
+        match line.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => heard.extend_from_slice(&buf[..n]),
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
+            Err(e) => return Err(e),
+        }
+    }
+    line.set_read_timeout(None)
+}
+
+/// Builds the firmware with `scripts/firmware.sh build`; returns the ELF.
+pub fn build_elf(log: &Path) -> anyhow::Result<PathBuf> {
+    build_elf_with(log, None)
+}
+
+/// [`build_elf`] with optional firmware `features` (comma-separated; their own target dir).
+pub fn build_elf_with(log: &Path, features: Option<&str>) -> anyhow::Result<PathBuf> {
+    let root = repo_root();
+    let log_file =
+        std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
+    let mut cmd = Command::new("bash");
+    if let Some(f) = features {
+        cmd.env("FIRMWARE_FEATURES", f);
+    }
+    let out = cmd
+        .arg(root.join("scripts/firmware.sh"))
+        .arg("build")
+        .stdin(Stdio::null())
+        .stderr(Stdio::from(log_file))
+        .output()
+        .context("running scripts/firmware.sh build")?;
+    if !out.status.success() {
+        bail!(
+            "scripts/firmware.sh build failed ({}):\n{}",
+            out.status,
+            tail(log, 30)
+        );
+    }
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let elf = stdout
+        .lines()
+        .last()
+        .map(|l| PathBuf::from(l.trim()))
+        .context("scripts/firmware.sh build printed no ELF path")?;
+    ensure!(elf.exists(), "ELF {} does not exist", elf.display());
+    Ok(elf)
+}
+
+fn tail(path: &Path, lines: usize) -> String {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let v: Vec<&str> = text.lines().collect();
+    v[v.len().saturating_sub(lines)..].join("\n")
+}
+
+/// Checks that `path` is an ELF executable (one-line errors naming the file).
+pub fn check_elf(path: &Path) -> anyhow::Result<()> {
+    let bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            bail!("{}: file not found", path.display())
+        }
+        Err(e) => bail!("{}: cannot read: {e}", path.display()),
+    };
+    ensure!(!bytes.is_empty(), "{}: file is empty", path.display());
+    ensure!(
+        bytes.starts_with(b"\x7fELF"),
+        "{}: wrong format: not an ELF file",
+        path.display()
+    );
+    // 32-bit ELF header: 52 bytes; the program headers it points to must be in the file too.
+    let u32_at = |o: usize| {
+        bytes
+            .get(o..o + 4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let u16_at = |o: usize| {
+        bytes
+            .get(o..o + 2)
+            .map(|b| u16::from_le_bytes([b[0], b[1]]))
+    };
+    let ph_end = match (u32_at(28), u16_at(42), u16_at(44)) {
+        (Some(off), Some(size), Some(n)) => off as usize + usize::from(size) * usize::from(n),
+        _ => usize::MAX,
+    };
+    ensure!(
+        bytes.len() >= 52 && bytes.len() >= ph_end,
+        "{}: truncated ELF file ({} bytes)",
+        path.display(),
+        bytes.len()
+    );
+    Ok(())
+}
+
+/// The repository root (host-sim's parent directory).
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from("."))
+}
+
+/// Why the firmware cannot run here, if it cannot: `firmware/target/toolchain.env` (written by
+/// `scripts/firmware-toolchain.sh`) and the QEMU it names must exist.
+pub fn toolchain_missing() -> Option<String> {
+    let env = repo_root().join("firmware/target/toolchain.env");
+    let Ok(text) = std::fs::read_to_string(&env) else {
+        return Some(format!(
+            "{} not found: run `bash scripts/firmware-toolchain.sh` first",
+            env.display()
+        ));
+    };
+    let qemu = text
+        .lines()
+        .find_map(|l| l.strip_prefix("FW_QEMU="))
+        .unwrap_or("");
+    if qemu.is_empty() || !Path::new(qemu).exists() {
+        return Some(format!(
+            "QEMU ({}) from {} does not exist: rerun `bash scripts/firmware-toolchain.sh`",
+            if qemu.is_empty() { "unset" } else { qemu },
+            env.display()
+        ));
+    }
+    None
+}
+
+fn rand_seed() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}

@@ -1,0 +1,83 @@
+//! What a run is made of: its world, its simulation and the settings sent to the robot.
+
+use anyhow::{ensure, Context};
+use ogm_core::config::{Budget, RunConfig};
+use ogm_field::world::{load_world, World};
+use ogm_firmware::sizes::MPS2_AN386 as FW;
+
+use super::args::FirmwareArgs;
+use crate::sim::generate::{generate, GenParams};
+use crate::sim::SimConfig;
+
+/// The simulation of a run: the paper's robot that scans when stopped, or with `--moving` /
+/// `--mission-scans` one that scans at the LD06's rate while it drives.
+pub fn sim_config(args: &FirmwareArgs) -> SimConfig {
+    let mut cfg = SimConfig::default();
+    if args.moving || args.mission_scans.is_some() {
+        cfg.explore =
+            crate::sim::explore::ExploreConfig::moving(10.0, 0.4, args.mission_scans.unwrap_or(0));
+        if args.mission_scans.is_none() {
+            cfg.explore.max_stops = SimConfig::default().explore.max_stops * 25;
+        }
+        // 4 500 points/s at 10 Hz, rounded up to whole 12-point LD06 packets.
+        cfg.lidar.beams = 456;
+    }
+    cfg
+}
+
+/// The world of a run: `--map` (5 cm, cropped to the firmware grid) or a generated building.
+pub fn firmware_world(args: &FirmwareArgs) -> anyhow::Result<World> {
+    let (w, h) = (usize::from(FW.width), usize::from(FW.height));
+    Ok(match &args.map {
+        Some(p) => load_world(p, None)
+            .with_context(|| format!("loading {}", p.display()))?
+            .resample(crate::eval::eval_sim::EVAL_RESOLUTION_M)
+            .crop(0, 0, w, h),
+        None => generate(
+            &GenParams {
+                width: w,
+                height: h,
+                ..GenParams::default()
+            },
+            args.seed,
+        ),
+    })
+}
+
+/// The settings sent to the robot for `world`.
+pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunConfig {
+    let budget = match args.fixed_updates {
+        Some(updates) => Budget::Fixed { updates },
+        None => Budget::Time {
+            period_us: args.period_us,
+            max_updates: args.max_updates,
+        },
+    };
+    let origin = (
+        (world.origin_m.0 * 1000.0).round() as i32,
+        (world.origin_m.1 * 1000.0).round() as i32,
+    );
+    let robot = RunConfig::robot(origin, max_range_mm, args.seed, budget);
+    args.sampler.apply(RunConfig {
+        cell_mm: (world.resolution_m * 1000.0).round() as u32,
+        tiles_per_scan: args.tiles_per_scan,
+        count_tiles_per_scan: args.count_tiles_per_scan,
+        visit_sweeps: args.visit_sweeps.unwrap_or(robot.visit_sweeps),
+        ..robot
+    })
+}
+
+/// The idle periods (µs) between the cumulative marks `secs` (increasing, positive).
+pub(super) fn idle_periods_us(secs: &[f64]) -> anyhow::Result<Vec<u32>> {
+    let mut prev = 0.0;
+    let mut out = Vec::new();
+    for &s in secs {
+        ensure!(
+            s.is_finite() && s > prev && s <= 600.0,
+            "--idle: marks must increase, from above 0 to at most 600 s (got {secs:?})"
+        );
+        out.push(((s - prev) * 1e6).round() as u32);
+        prev = s;
+    }
+    Ok(out)
+}
