@@ -61,7 +61,11 @@ fn errors(events: &[DeviceEvent]) -> Vec<(ErrorCode, u32)> {
 }
 
 fn config() -> RunConfig {
-    RunConfig::robot((-6400, -6400), 8000, 7, Budget::Fixed { updates: 200 })
+    RunConfig::ROBOT
+        .with_origin_mm(-6400, -6400)
+        .with_max_range_mm(8000)
+        .with_seed(7)
+        .with_budget(Budget::Fixed { updates: 200 })
 }
 
 /// A scan of a 4 m square room seen from `pose`: 360 beams, as LD06 packets in frames.
@@ -347,12 +351,12 @@ fn a_standing_robot_maps_its_lidar_uart_like_tunnelled_scans() {
 #[test]
 fn the_stored_settings_are_the_robot_settings() {
     use ogm_firmware::app::STORED_CONFIG;
-    let robot = RunConfig::robot(
-        (STORED_CONFIG.origin_x_mm, STORED_CONFIG.origin_y_mm),
-        STORED_CONFIG.max_range_mm,
-        STORED_CONFIG.seed,
-        STORED_CONFIG.budget,
-    );
+    let robot = RunConfig::ROBOT
+        .with_origin_mm(STORED_CONFIG.origin_x_mm, STORED_CONFIG.origin_y_mm)
+        .with_max_range_mm(STORED_CONFIG.max_range_mm)
+        .with_seed(STORED_CONFIG.seed)
+        .with_budget(STORED_CONFIG.budget)
+        .with_noise_matched(3.0);
     assert_eq!(
         STORED_CONFIG,
         RunConfig {

@@ -58,8 +58,6 @@ pub mod reference;
 
 pub use config::RunConfig;
 pub use error::{Error, Result};
-// TODO(issue 36): remove after host-sim migrates (see `lidar::source`).
-pub use lidar::source::{PoseSource, RangeSensor};
 pub use map::grid::LogOddsGrid;
 pub use map::mapper::{Mapper, MapperConfig, ScanStats};
 pub use session::{Inserted, Session, SessionError, Sizes};

@@ -298,52 +298,6 @@ impl RunConfig {
         RunConfig { poses, ..self }
     }
 
-    /// [`RunConfig::PAPER`] with the grid's lower-left corner at `origin_mm`, the range, seed
-    /// and budget given.
-    // TODO(issue 36): remove after host-sim migrates (to `RunConfig::PAPER.with_...`).
-    pub const fn paper(
-        origin_mm: (i32, i32),
-        max_range_mm: u32,
-        seed: u64,
-        budget: Budget,
-    ) -> Self {
-        Self::PAPER.with_args(origin_mm, max_range_mm, seed, budget)
-    }
-
-    /// [`RunConfig::ROBOT`] with the grid's lower-left corner at `origin_mm`, the range, seed
-    /// and budget given, noise-matched at its σ (which changes nothing: tested).
-    // TODO(issue 36): remove after host-sim migrates (to `RunConfig::ROBOT.with_...`).
-    pub fn robot(origin_mm: (i32, i32), max_range_mm: u32, seed: u64, budget: Budget) -> Self {
-        let robot = Self::robot_at_paper_sigma(origin_mm, max_range_mm, seed, budget);
-        robot.with_noise_matched(f64::from(robot.sigma_milli_cells) / 1000.0)
-    }
-
-    /// [`RunConfig::ROBOT`] with the grid's lower-left corner at `origin_mm`, the range, seed
-    /// and budget given.
-    // TODO(issue 36): remove after host-sim migrates (to `RunConfig::ROBOT.with_...`).
-    pub const fn robot_at_paper_sigma(
-        origin_mm: (i32, i32),
-        max_range_mm: u32,
-        seed: u64,
-        budget: Budget,
-    ) -> Self {
-        Self::ROBOT.with_args(origin_mm, max_range_mm, seed, budget)
-    }
-
-    /// The four positional arguments of the old constructors.
-    const fn with_args(
-        self,
-        origin_mm: (i32, i32),
-        max_range_mm: u32,
-        seed: u64,
-        budget: Budget,
-    ) -> Self {
-        self.with_origin_mm(origin_mm.0, origin_mm.1)
-            .with_max_range_mm(max_range_mm)
-            .with_seed(seed)
-            .with_budget(budget)
-    }
-
     /// These settings with the robot's noise-matched mapper and evidence for a sensor whose
     /// range noise is `sigma` cells (and `sigma_milli_cells` set to it): the face band where
     /// σ spans several cells ([`noise::face_band_for`]; then no free scaling and the

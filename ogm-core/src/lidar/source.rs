@@ -1,9 +1,6 @@
-//! Blocking scan and pose traits, [`RangeSensor`] and [`PoseSource`]: *not* the way scans
-//! reach the engine. They stay until host-sim's evaluation path (its synthetic lidar, a
-//! replayed laser log, `session::pipeline::map_next_scan`) and the blocking readers
-//! ([`crate::lidar::ld06::Ld06Reader`], [`crate::lidar::rplidar::RplidarReader`], host-side
-//! conveniences over `embedded_io::Read`) move off them; nothing in ogm-core's engine or the
-//! firmware depends on them.
+//! How scans and poses reach the engine, and the error of the blocking readers
+//! ([`crate::lidar::ld06::Ld06Reader`], [`crate::lidar::rplidar::RplidarReader`]: host-side
+//! conveniences over `embedded_io::Read`, e.g. a serial port or a file).
 //!
 //! # The one seam: bytes, not scans
 //!
@@ -22,14 +19,10 @@
 //! the link while a turn is assembled — a call that blocks until a whole turn has arrived
 //! would stall the poses that turn waits for. A sans-IO parser takes whatever bytes arrived
 //! and never waits, so the board and the host drive the identical code with the identical
-//! bytes (the replay is bit-exact).
-// TODO(issue 36): remove the traits after host-sim migrates (and with them `ReadError`, the
-// readers' `RangeSensor` impls and `session::pipeline`).
+//! bytes (the replay is bit-exact). This is why ogm-core has no blocking scan or pose trait:
+//! the robot would not use it.
 
-use crate::types::geometry::Pose;
-use crate::types::scan::ScanBuf;
-
-/// Errors of a [`RangeSensor`] reading a byte source ([`crate::lidar::ld06::Ld06Reader`],
+/// Errors of a blocking reader of a byte source ([`crate::lidar::ld06::Ld06Reader`],
 /// [`crate::lidar::rplidar::RplidarReader`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -51,20 +44,3 @@ impl<E: core::fmt::Debug> core::fmt::Display for ReadError<E> {
 }
 
 impl<E: core::fmt::Debug> core::error::Error for ReadError<E> {}
-
-/// A source of complete scans (one sensor revolution).
-pub trait RangeSensor {
-    /// Transport or protocol error.
-    type Error;
-    /// Blocks until the next complete scan is available and writes it into `scan` (which the
-    /// implementation clears first).
-    fn read_scan<const N: usize>(&mut self, scan: &mut ScanBuf<N>) -> Result<(), Self::Error>;
-}
-
-/// A source of robot poses (known-pose mapping, as in the papers).
-pub trait PoseSource {
-    /// Transport or protocol error.
-    type Error;
-    /// The pose at which the most recently read scan was taken.
-    fn current_pose(&mut self) -> Result<Pose, Self::Error>;
-}

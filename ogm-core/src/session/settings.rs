@@ -87,13 +87,6 @@ mod tests {
             .with_budget(budget);
         // The constant is the robot's noise matching at its own σ.
         assert_eq!(robot, robot.with_noise_matched(3.0));
-        // The old constructors (kept until host-sim migrates) are the builders.
-        assert_eq!(RunConfig::paper((-6400, -6400), 3750, 7, budget), c);
-        assert_eq!(RunConfig::robot((0, 0), 3750, 7, budget), robot);
-        assert_eq!(
-            RunConfig::robot_at_paper_sigma((0, 0), 3750, 7, budget),
-            robot
-        );
         // The default: the robot's, at the origin, an LD06's range and turn, seed 1.
         let d = RunConfig::default();
         assert_eq!(d, RunConfig::ROBOT);
