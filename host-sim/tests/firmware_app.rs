@@ -215,7 +215,7 @@ fn a_run_streams_exactly_the_engine_map() {
     assert_eq!(reports.len(), 3);
     assert!(reports
         .iter()
-        .all(|r| r.beams == 360 && r.sampler_updates == 200 && r.cells_hit > 0));
+        .all(|r| r.beams == 360 && r.sampler_updates == 200 && r.mapper.cells_hit > 0));
     let mut map = StreamedMap::new(w, h, usize::from(FW.tile_edge));
     for e in &events {
         if let DeviceEvent::Tile(t) = e {

@@ -14,7 +14,7 @@
 //! * [`lidar`] — LD06 and RPLIDAR parsers, the robot's receive link, turns and pose tracking:
 //!   the one way scans and poses enter (bytes in, sans-IO; [`lidar::source`] says why);
 //! * [`session`] — the engine: mapper, ray store and sampler behind `insert` / `step`;
-//! * [`reference`] — f64 reference implementations for tests (feature `reference`).
+//! * [`mod@reference`] — f64 reference implementations for tests (feature `reference`).
 //!
 //! ## Panics
 //! Nothing in this crate panics on input values. Slices are accessed with `get`, arithmetic on

@@ -189,7 +189,7 @@ impl<S: Storage> State<'_, S> {
         report.sampler_updates = updates;
         match inserted {
             Ok(inserted) => {
-                report.set_scan_stats(&inserted.stats);
+                report.mapper = inserted.stats;
                 report.rays_stored = inserted.rays.len() as u32;
                 // The ray model changes nothing outside the box around the pose's cell and
                 // every beam's end cell (computed here, after the sampler's budget).
@@ -205,7 +205,7 @@ impl<S: Storage> State<'_, S> {
         let t = &mut self.totals;
         t.scans += 1;
         t.beams += u64::from(report.beams);
-        t.cells += u64::from(report.cells_hit + report.cells_freed);
+        t.cells += u64::from(report.mapper.cells_hit + report.mapper.cells_freed);
         t.insert_ticks += u64::from(report.insert_ticks);
         t.max_insert_ticks = t.max_insert_ticks.max(report.insert_ticks);
         t.sampler_ticks += u64::from(report.sampler_ticks);
@@ -214,7 +214,7 @@ impl<S: Storage> State<'_, S> {
             "scan {=u32}: {=u32} beams, {=u32} cells, {=u32} rays stored in {=u32} ticks; {=u32} sampler updates in {=u32} ticks",
             seq,
             report.beams,
-            report.cells_hit + report.cells_freed,
+            report.mapper.cells_hit + report.mapper.cells_freed,
             report.rays_stored,
             report.insert_ticks,
             updates,

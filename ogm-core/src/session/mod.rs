@@ -33,7 +33,6 @@
 //! firmware, `Vec`s on the host ([`Owned`], feature `alloc`) — is one [`Storage`] type.
 
 mod insert;
-mod report;
 mod settings;
 
 pub use insert::Inserted;

@@ -224,16 +224,4 @@ impl MapperConfig {
     }
 }
 
-/// What a scan did.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct ScanStats {
-    /// Beams that were used.
-    pub beams_used: u32,
-    /// Beams dropped (closer than the minimum range).
-    pub beams_dropped: u32,
-    /// Cells that received the occupied update.
-    pub cells_hit: u32,
-    /// Cells that received the free update.
-    pub cells_freed: u32,
-}
+pub use crate::types::scan::ScanStats;
