@@ -13,7 +13,6 @@ use ogm_core::lidar::rplidar::{
     RplidarParser, RplidarReader, DESCRIPTOR_LEN, HEALTH_LEN, INFO_LEN, MAX_RANGE_MM, NODE_LEN,
     SAMPLERATE_LEN, TURN_Q6,
 };
-use ogm_core::lidar::source::RangeSensor;
 use ogm_core::{Angle, Beam, Range, ScanBuf};
 
 fuzz_target!(|data: &[u8]| {
