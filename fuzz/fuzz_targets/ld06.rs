@@ -7,7 +7,6 @@
 
 use libfuzzer_sys::fuzz_target;
 use ogm_core::lidar::ld06::{Ld06Parser, Ld06Reader, Packet, PACKET_LEN, POINTS};
-use ogm_core::lidar::source::RangeSensor;
 use ogm_core::ScanBuf;
 
 fuzz_target!(|data: &[u8]| {
