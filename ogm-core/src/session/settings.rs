@@ -40,7 +40,7 @@ impl RunConfig {
 
     /// The sampler settings. The initial sample uses [`SamplerConfig`]'s default threshold
     /// (−1 LSB: never-observed cells start occupied); online, cells are seeded from their
-    /// log-odds when first observed ([`crate::session::pipeline::insert_and_seed`]).
+    /// log-odds when first observed ([`crate::session::Session::insert`]).
     pub fn sampler_config(&self) -> SamplerConfig {
         SamplerConfig {
             // f32 arithmetic: the Cortex-M4F has it in hardware (f64 would be ~2.6 KiB of
@@ -72,14 +72,34 @@ mod tests {
 
     #[test]
     fn config_builds_the_models() {
-        let c = RunConfig::paper((-6400, -6400), 3750, 7, Budget::Fixed { updates: 100 });
+        let budget = Budget::Fixed { updates: 100 };
+        let c = RunConfig::PAPER
+            .with_origin_mm(-6400, -6400)
+            .with_max_range_mm(3750)
+            .with_seed(7)
+            .with_budget(budget);
         let g = c.geometry(256, 256).unwrap();
         assert_eq!(g.origin_mm(), (-6400, -6400));
         assert_eq!(c.mapper_config(), Ok(MapperConfig::new(3750)));
-        let robot = RunConfig::robot((0, 0), 3750, 7, Budget::Fixed { updates: 100 });
+        let robot = RunConfig::ROBOT
+            .with_max_range_mm(3750)
+            .with_seed(7)
+            .with_budget(budget);
+        // The constant is the robot's noise matching at its own σ.
+        assert_eq!(robot, robot.with_noise_matched(3.0));
+        // The default: the robot's, at the origin, an LD06's range and turn, seed 1.
+        let d = RunConfig::default();
+        assert_eq!(d, RunConfig::ROBOT);
         assert_eq!(
-            robot,
-            RunConfig::robot_at_paper_sigma((0, 0), 3750, 7, Budget::Fixed { updates: 100 })
+            (d.origin_x_mm, d.origin_y_mm, d.max_range_mm, d.seed),
+            (0, 0, 12_000, 1)
+        );
+        assert_eq!(
+            d.budget,
+            Budget::Time {
+                period_us: 100_000,
+                max_updates: u32::MAX
+            }
         );
         // σ = 3 cells of 50 mm: the face band, the evidence as it is.
         assert!(robot.face_band);

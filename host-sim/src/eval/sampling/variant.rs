@@ -82,13 +82,7 @@ impl Variant {
             Variant::L9Border | Variant::L9BorderHybrid | Variant::L9BorderMean => {
                 // The robot's settings at this data set's σ: the face band, or the split free
                 // update and the 1/σ evidence gain.
-                let robot = ogm_core::config::RunConfig::robot(
-                    (0, 0),
-                    1,
-                    0,
-                    ogm_core::config::Budget::Fixed { updates: 0 },
-                )
-                .with_noise_matched(cfg.sigma_cells);
+                let robot = ogm_core::config::RunConfig::ROBOT.with_noise_matched(cfg.sigma_cells);
                 SamplingConfig {
                     data: if self == Variant::L9BorderHybrid {
                         DataTerm::Hybrid
