@@ -28,7 +28,7 @@ impl Inserted<'_> {
     /// rays change nothing outside it ([`crate::map::mapper::scan_box`]).
     ///
     /// Computed when asked, not by the insert: it costs about 7 % of an insert's instructions
-    /// (docs/benchmarks.md), which the firmware spends after its sampler budget, not in it.
+    /// (docs/performance.md), which the firmware spends after its sampler budget, not in it.
     pub fn changed_box(&self) -> (CellCoord, CellCoord) {
         mapper::scan_box(&self.geometry, &self.mapper, &self.pose, self.beams)
     }
