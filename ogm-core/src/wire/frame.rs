@@ -229,6 +229,7 @@ mod tests {
             lidar: LidarModel::Rplidar {
                 sample_us: u16::MAX,
             },
+            window_margin_cells: u16::MAX,
         }
     }
 
