@@ -227,13 +227,28 @@ impl<S: Storage> Session<S> {
         if !moved {
             return Err(SessionError::Window(crate::Error::InvalidGeometry));
         }
-        let r = &mut self.window.report;
-        (r.origin_x, r.origin_y) = (ox, oy);
-        r.shifts = r.shifts.saturating_add(1);
-        r.tiles_out = r
-            .tiles_out
-            .saturating_add(u32::try_from(shift.leaving_count()).unwrap_or(u32::MAX));
+        self.window.report = WindowReport {
+            origin_x: ox,
+            origin_y: oy,
+            ..self.window_after(shift)
+        };
         Ok(())
+    }
+
+    /// What [`Session::window`] will say once `shift` is applied (a device announces it
+    /// before it streams the leaving tiles).
+    pub fn window_after(&self, shift: &Shift) -> WindowReport {
+        let r = self.window.report;
+        let (origin_x, origin_y) = shift.to();
+        WindowReport {
+            origin_x,
+            origin_y,
+            shifts: r.shifts.saturating_add(1),
+            tiles_out: r
+                .tiles_out
+                .saturating_add(u32::try_from(shift.leaving_count()).unwrap_or(u32::MAX)),
+            ..r
+        }
     }
 
     /// Restores a stored tile as the window comes back over it: building tile (`tx`, `ty`) of

@@ -50,4 +50,4 @@ pub use tile::{
 };
 
 /// Schema version, the first byte of every frame.
-pub const VERSION: u8 = 5;
+pub const VERSION: u8 = 6;
