@@ -138,13 +138,15 @@ fn tile_data(s: &impl TileSource, rect: &TileRect) -> (Vec<i16>, Vec<u8>) {
 
 type Stored = HashMap<(i32, i32), (Vec<i16>, Vec<u8>)>;
 
+/// Log-odds by building cell.
+type Stitched = HashMap<(i32, i32), i16>;
+
+/// A map of the whole building: cells, building cell of index 0, size.
+type Unbounded = (Vec<i16>, (i32, i32), (u16, u16));
+
 /// Runs the path through a rolling window; returns the stitched log-odds by building cell, the
 /// session and the number of tiles restored.
-fn run_window(
-    poses: &[Pose],
-    boxes: &[[f64; 4]],
-    restore: bool,
-) -> (HashMap<(i32, i32), i16>, Session<Owned<u8>>) {
+fn run_window(poses: &[Pose], boxes: &[[f64; 4]], restore: bool) -> (Stitched, Session<Owned<u8>>) {
     let cfg = config().with_window_margin_cells(MARGIN);
     let mut w = Session::new(cfg, Owned::<u8>::buffers(&Sizes::grid(WIN, WIN))).unwrap();
     assert!(w.window_fits(EDGE));
@@ -198,7 +200,7 @@ fn run_window(
 }
 
 /// The same scans on one grid that holds the whole building.
-fn run_unbounded(poses: &[Pose], boxes: &[[f64; 4]]) -> (Vec<i16>, (i32, i32), (u16, u16)) {
+fn run_unbounded(poses: &[Pose], boxes: &[[f64; 4]]) -> Unbounded {
     // Building cells −64 .. 960 × −64 .. 704.
     let (x0, y0, w, h) = (-64, -64, 1024u16, 768u16);
     let cfg = config().with_origin_mm(x0 * CELL, y0 * CELL);
@@ -213,10 +215,7 @@ fn run_unbounded(poses: &[Pose], boxes: &[[f64; 4]]) -> (Vec<i16>, (i32, i32), (
     )
 }
 
-fn compare(
-    map: &HashMap<(i32, i32), i16>,
-    unbounded: &(Vec<i16>, (i32, i32), (u16, u16)),
-) -> usize {
+fn compare(map: &Stitched, unbounded: &Unbounded) -> usize {
     let (cells, (x0, y0), (w, _)) = unbounded;
     let (x0, y0) = (*x0, *y0);
     let mut differ = 0;
