@@ -109,8 +109,9 @@ impl RunConfig {
     /// [`Error::InvalidModel`] if `sigma_cells` is not positive and finite or `outlier_share` not
     /// within 0 ..= 1.
     pub fn with_sensor(self, sigma_cells: f64, outlier_share: f64) -> Result<Self> {
-        if !(sigma_cells.is_finite() && sigma_cells > 0.0) || !(0.0..=1.0).contains(&outlier_share)
-        {
+        let valid =
+            sigma_cells.is_finite() && sigma_cells > 0.0 && (0.0..=1.0).contains(&outlier_share);
+        if !valid {
             return Err(Error::InvalidModel);
         }
         let tau = outlier_share.min(MAX_OUTLIER_SHARE);
