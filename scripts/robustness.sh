@@ -8,8 +8,10 @@
 # SEEDS (default "1 2 3"), LOGS (default ../shared/data/logs), METHODS (default
 # gibbs_l9_border), EXTRA (more eval-log options), HOST_SIM (default target/release/host-sim).
 # Runs one eval-log at a time (≈7-10 s each on the five logs; ≈5 min in all on an idle
-# 2-core machine). Writes OUT/<condition>/summary.json
-# per run, then OUT/table.md (scripts/robustness-table.py).
+# 2-core machine). Writes OUT/<condition>/summary.json per run (a run whose summary.json is
+# there already is kept: an interrupted table resumes), then OUT/table.md
+# (scripts/robustness-table.py). The runs' pictures (≈25 MB a run) are deleted unless
+# KEEP_IMAGES=1.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/robustness}
@@ -30,10 +32,18 @@ run() { # name, options...
   local name=$1; shift
   local dir="$OUT/$name"
   local cmd="$HOST_SIM eval-log --log $LOGS --methods $METHODS --out $dir $EXTRA $*"
+  if [ -f "$dir/summary.json" ]; then
+    echo "kept $name"
+    return
+  fi
   mkdir -p "$dir"
   echo "$cmd" > "$dir/command.txt"
   # shellcheck disable=SC2086
-  $cmd > "$dir/stdout.txt" 2> "$dir/stderr.txt"
+  if ! $cmd > "$dir/stdout.txt" 2> "$dir/stderr.txt"; then
+    echo "robustness: $name failed (see $dir/stderr.txt)" >&2
+    exit 1
+  fi
+  [ "${KEEP_IMAGES:-0}" = 1 ] || find "$dir" -name '*.png' -delete
   echo "done $name"
 }
 start=$(date +%s)
