@@ -133,7 +133,7 @@ impl RunConfig {
 
     /// The far edge's share (Q8, `InverseSensorModel::with_far_edge`) of these settings' face
     /// band: that of the sensor whose band [`RunConfig::with_sensor`] makes σ_b =
-    /// `sigma_milli_cells` wide ([`far_edge_q8`] of the σ with [`band_sigma`](σ) = σ_b; σ_b
+    /// `sigma_milli_cells` wide ([`far_edge_q8`] of the σ whose [`band_sigma`] is σ_b; σ_b
     /// grows with σ, so there is one). All of the half step for a band of σ_b → 0, none from
     /// [`FULL_BAND_SIGMA`] on (the firmware's default), continuous in between; 0 without a band.
     pub fn band_far_edge_q8(&self) -> u16 {
