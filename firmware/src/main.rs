@@ -52,7 +52,7 @@ fn main() -> ! {
         ogm_firmware::app::MAX_BEAMS
     );
     let (link, lidar, clock) = board.parts();
-    let code = ogm_firmware::app::run(memory, link, lidar, clock);
+    let code = ogm_firmware::run(memory, link, lidar, clock);
     let stack = board::stack_usage();
     info!(
         "stack: {=u32} of {=u32} bytes used since the settings were applied (high-water mark)",

@@ -6,8 +6,8 @@
 //!   the cell size the patch prior was learnt at; the paper used 2 cm for the Intel lab).
 //! * **Mapper.** `ogm_core`'s Hähnel mapper ([`crate::sim::new_mapper`]) with maximum range
 //!   `min(sensor range, --range-cap)`: a hit at or beyond it frees cells up to the cap and marks
-//!   nothing, like a no-return. Scans go through `ogm_core::session::pipeline::map_next_scan` with a
-//!   [`ReplaySensor`] over the recorded scans — the trait path the firmware uses.
+//!   nothing, like a no-return. A [`ReplaySensor`] reads the recorded scans into the engine's
+//!   scan buffer, one [`crate::sim::insert_scan`] each.
 //! * **Benchmark.** Traditional OGM on all of the log's scans and beams; a cell some
 //!   measurement updated is occupied iff p > [`BENCHMARK_THRESHOLD`] (0.20; see
 //!   [`benchmark_truth`] for why strictly), else free; cells no measurement updated are unknown
@@ -41,8 +41,7 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, ensure, Context};
 use ogm_core::map::mapper::marks_len;
-use ogm_core::session::pipeline::map_next_scan;
-use ogm_core::{GridGeometry, LogOdds, MapperConfig, Pose, Range, RangeSensor, ScanBuf};
+use ogm_core::{GridGeometry, LogOdds, MapperConfig, Pose, Range, ScanBuf};
 use ogm_field::world::load::{DEFAULT_FREE_THRESH, DEFAULT_OCCUPIED_THRESH};
 use ogm_field::world::{Truth, World};
 use serde::{Deserialize, Serialize};
@@ -55,7 +54,7 @@ use crate::eval::report::{MapInfo, Report};
 use crate::eval::sampling::{run_sampler, SamplingConfig, Variant};
 use crate::sim::carmen::{read_log, LogInfo, ReadOptions};
 use crate::sim::explore::ScanRecord;
-use crate::sim::{mark_observed, new_mapper, probabilities, KnownPose, MAX_BEAMS};
+use crate::sim::{insert_scan, mark_observed, new_mapper, probabilities, MAX_BEAMS};
 
 /// The benchmark threshold of the paper: occupied iff p > 0.20.
 pub const BENCHMARK_THRESHOLD: f64 = 0.20;
@@ -153,7 +152,7 @@ pub struct EvalLogArgs {
     pub perturb: crate::eval::perturb::PerturbArgs,
 }
 
-/// A [`RangeSensor`] that replays recorded scans in order; `Err(EndOfLog)` after the last.
+/// Replays recorded scans in order, like a sensor; `Err(EndOfLog)` after the last.
 #[derive(Clone, Debug)]
 pub struct ReplaySensor<'a> {
     scans: &'a [ScanRecord],
@@ -170,15 +169,16 @@ impl<'a> ReplaySensor<'a> {
         ReplaySensor { scans, next: 0 }
     }
 
-    /// The pose of the scan that the next [`RangeSensor::read_scan`] returns.
+    /// The pose of the scan that the next [`ReplaySensor::read_scan`] returns.
     pub fn next_pose(&self) -> Option<Pose> {
         self.scans.get(self.next).map(|s| s.pose)
     }
 }
 
-impl RangeSensor for ReplaySensor<'_> {
-    type Error = EndOfLog;
-    fn read_scan<const N: usize>(&mut self, scan: &mut ScanBuf<N>) -> Result<(), EndOfLog> {
+impl ReplaySensor<'_> {
+    /// The next scan into `scan` (cleared first; beams beyond its capacity are counted as its
+    /// overflow).
+    pub fn read_scan<const N: usize>(&mut self, scan: &mut ScanBuf<N>) -> Result<(), EndOfLog> {
         let s = self.scans.get(self.next).ok_or(EndOfLog)?;
         self.next += 1;
         scan.clear();
@@ -202,7 +202,7 @@ pub struct Mapped {
     pub seconds: f64,
 }
 
-/// Maps `scans` online through `ogm_core::session::pipeline::map_next_scan`.
+/// Maps `scans` online, one [`crate::sim::insert_scan`] each.
 pub fn map_scans(
     geometry: GridGeometry,
     config: MapperConfig,
@@ -216,10 +216,11 @@ pub fn map_scans(
     let mut marks = vec![0u32; marks_len(geometry.len())];
     let mut overflowed = 0u64;
     while let Some(pose) = sensor.next_pose() {
-        let mut poses = KnownPose(pose);
-        let step = map_next_scan(&mut sensor, &mut poses, &mut *buf, &mut mapper)
-            .map_err(|e| anyhow!("mapping failed: {e:?}"))?;
-        overflowed += u64::from(step.beams_overflowed);
+        sensor
+            .read_scan(&mut *buf)
+            .map_err(|_| anyhow!("the log ended before its last pose"))?;
+        insert_scan(&mut mapper, &pose, &mut *buf)?;
+        overflowed += u64::from(buf.overflow());
         mark_observed(
             &geometry,
             &config,

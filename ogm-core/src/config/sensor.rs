@@ -15,7 +15,7 @@ use crate::error::{Error, Result};
 
 /// The σ (cells) from which the face band takes the sensor's whole σ and no far edge: the
 /// simulated LD06's, where the band was measured (docs/results.md, "Face band") and the
-/// firmware's default runs ([`RunConfig::robot`]).
+/// firmware's default runs ([`RunConfig::ROBOT`]).
 pub const FULL_BAND_SIGMA: f64 = 3.0;
 
 /// Largest share of hits without evidence [`RunConfig::with_sensor`] corrects for: beyond it
@@ -105,7 +105,7 @@ impl RunConfig {
     ///   so when a share τ of the hits carries none its evidence relative to the prior is
     ///   diluted by 1 − τ, and the gain restores it.
     ///
-    /// At σ = 3 cells and τ = 0: exactly [`RunConfig::robot`] (tested). Everything else is kept.
+    /// At σ = 3 cells and τ = 0: exactly [`RunConfig::ROBOT`] (tested). Everything else is kept.
     /// [`Error::InvalidModel`] if `sigma_cells` is not positive and finite or `outlier_share` not
     /// within 0 ..= 1.
     pub fn with_sensor(self, sigma_cells: f64, outlier_share: f64) -> Result<Self> {
@@ -161,16 +161,25 @@ mod tests {
     use crate::config::Budget;
 
     fn base() -> RunConfig {
-        RunConfig::robot_at_paper_sigma((0, 0), 3750, 7, Budget::Fixed { updates: 100 })
+        RunConfig::ROBOT
+            .with_max_range_mm(3750)
+            .with_seed(7)
+            .with_budget(Budget::Fixed { updates: 100 })
     }
 
     #[test]
     fn the_robot_at_the_paper_sigma() {
-        let robot = RunConfig::robot((0, 0), 3750, 7, Budget::Fixed { updates: 100 });
+        let robot = RunConfig::ROBOT
+            .with_max_range_mm(3750)
+            .with_seed(7)
+            .with_budget(Budget::Fixed { updates: 100 });
         assert_eq!(base().with_sensor(3.0, 0.0), Ok(robot));
         assert_eq!(robot.band_far_edge_q8(), 0);
         // Any starting point: only the sensor's fields change.
-        let paper = RunConfig::paper((0, 0), 3750, 7, Budget::Fixed { updates: 100 });
+        let paper = RunConfig::PAPER
+            .with_max_range_mm(3750)
+            .with_seed(7)
+            .with_budget(Budget::Fixed { updates: 100 });
         let p = paper.with_sensor(3.0, 0.0).unwrap();
         assert_eq!((p.data, p.estimator), (paper.data, paper.estimator));
         assert!(p.face_band);

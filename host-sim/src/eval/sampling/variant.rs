@@ -72,7 +72,7 @@ impl Variant {
         }
     }
 
-    /// `cfg` with this variant's data term and estimator: the robot's (`RunConfig::robot` made
+    /// `cfg` with this variant's data term and estimator: the robot's (`RunConfig::ROBOT` made
     /// for the sensor of `cfg.sensor()` by `RunConfig::with_sensor`: its face band, far edge and
     /// evidence gain) for
     /// [`Variant::L9Border`] and [`Variant::L9BorderHybrid`] ([`Variant::L9BorderMean`]: the
@@ -83,12 +83,7 @@ impl Variant {
             Variant::L9Border | Variant::L9BorderHybrid | Variant::L9BorderMean => {
                 // The robot's settings for this data set's sensor. σ and τ are checked where
                 // they are set (the options, the noise estimate); the robot's default otherwise.
-                let base = ogm_core::config::RunConfig::robot(
-                    (0, 0),
-                    1,
-                    0,
-                    ogm_core::config::Budget::Fixed { updates: 0 },
-                );
+                let base = ogm_core::config::RunConfig::ROBOT;
                 let (sigma, tau) = cfg.sensor();
                 let robot = base.with_sensor(sigma, tau).unwrap_or(base);
                 SamplingConfig {
