@@ -37,7 +37,7 @@ pub struct FirmwareArgs {
     #[arg(long, default_value_t = 8)]
     pub count_tiles_per_scan: u16,
     /// Sweeps of a sampler tile per visit (more: the tile's ray gather is shared by more patch
-    /// updates; fewer: the sampler moves over the map sooner). Default: `RunConfig::robot`'s.
+    /// updates; fewer: the sampler moves over the map sooner). Default: `RunConfig::ROBOT`'s.
     #[arg(long)]
     pub visit_sweeps: Option<u8>,
     /// Mix garbage into the input (the firmware must skip it; the comparison still holds).
@@ -107,7 +107,7 @@ pub struct FirmwareArgs {
     /// Only decode a captured map stream (e.g. firmware/target/qemu/uart1.out) and summarise it.
     #[arg(long)]
     pub decode: Option<PathBuf>,
-    /// The sampler's settings (default: the robot's, `RunConfig::robot`).
+    /// The sampler's settings (default: the robot's, `RunConfig::ROBOT`).
     #[command(flatten)]
     pub sampler: SamplerArgs,
 }
@@ -184,7 +184,7 @@ pub enum PatternArg {
     A1,
 }
 
-/// Sampler settings sent to the robot (each defaults to `RunConfig::robot`'s).
+/// Sampler settings sent to the robot (each defaults to `RunConfig::ROBOT`'s).
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct SamplerArgs {
     /// Measurement term: rays, evidence or hybrid.
