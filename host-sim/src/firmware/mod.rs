@@ -31,6 +31,7 @@ mod args;
 mod compare;
 mod groups;
 pub mod input;
+pub mod log;
 mod qemu;
 mod replay;
 mod report;
