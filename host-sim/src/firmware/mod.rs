@@ -32,6 +32,7 @@ mod compare;
 mod groups;
 pub mod input;
 pub mod log;
+mod log_run;
 mod qemu;
 mod replay;
 mod report;
