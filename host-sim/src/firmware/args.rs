@@ -104,6 +104,15 @@ pub struct FirmwareArgs {
     /// Show QEMU's output (decoded defmt log) instead of writing it to a log file.
     #[arg(long)]
     pub verbose: bool,
+    /// A real laser log (CARMEN, plain or gzip) through the firmware: its scans as LD06 turns
+    /// on the lidar UART, its poses as pose messages (needs `--out DIR`: the robot's map as
+    /// `map.yaml`, scored like `eval-log` in `report.json`).
+    #[arg(long)]
+    pub log: Option<PathBuf>,
+    /// With `--log`: `eval-log`'s experiment (1 = every 2nd beam, 2 = every 2nd pose and beam,
+    /// 3 = every 10th pose and 2nd beam, 0 = everything).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(0..=3))]
+    pub experiment: u8,
     /// Only decode a captured map stream (e.g. firmware/target/qemu/uart1.out) and summarise it.
     #[arg(long)]
     pub decode: Option<PathBuf>,
@@ -143,6 +152,8 @@ impl Default for FirmwareArgs {
             out: None,
             verbose: false,
             decode: None,
+            log: None,
+            experiment: 1,
         }
     }
 }
