@@ -45,6 +45,9 @@ pub struct LogRunReport {
     pub experiment: u8,
     /// How the scans were sent.
     pub encoding: LogEncoding,
+    /// The sensor the settings were made for (σ cells, τ), estimated from the experiment's
+    /// data as `eval-log` does; `None`: too few hits, the robot's defaults.
+    pub sensor: Option<(f64, f64)>,
     /// The settings the robot ran with.
     pub config: RunConfig,
     /// The robot's grid: cells wide and tall, and where it lies in `eval-log`'s grid of the
@@ -98,7 +101,20 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
             max_updates: args.max_updates,
         },
     };
-    let base = RunConfig::ROBOT
+    // The robot's settings made for this log's sensor, as eval-log's robot mode makes them
+    // (σ and τ estimated from the experiment's own data), on the robot's grid.
+    let sensor = crate::eval::noise::estimate(
+        &g,
+        &setup.mapper,
+        &scans,
+        &map_scans(g, setup.mapper, &scans)?.map,
+    )
+    .map(|n| n.sensor());
+    let robot = match sensor {
+        Some((sigma, tau)) => RunConfig::ROBOT.with_sensor(sigma, tau)?,
+        None => RunConfig::ROBOT,
+    };
+    let base = robot
         .with_origin_mm(ox, oy)
         .with_max_range_mm(setup.mapper.max_range_mm)
         .with_seed(args.seed)
@@ -114,13 +130,14 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
     let (input, encoding) = log_input(&scans, &config)?;
     eprintln!(
         "{}: {} scans (experiment {experiment}) as LD06 turns, lidar mounted at {}°; \
-         {} padding points, {} inexact angles, {} clipped ranges",
+         {} padding points, {} inexact angles, {} clipped ranges; settings for σ, τ = {:?}",
         setup.name,
         scans.len(),
         encoding.mount_deg,
         encoding.padding_points,
         encoding.inexact_angles,
-        encoding.clipped_ranges
+        encoding.clipped_ranges,
+        sensor
     );
     let (firmware, stream) = run_input(args, &config, &input)?;
     std::fs::create_dir_all(out)
@@ -167,6 +184,7 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         log: path.display().to_string(),
         experiment,
         encoding,
+        sensor,
         config,
         grid: (fw.width, fw.height),
         offset_cells: off,
