@@ -123,7 +123,7 @@ fn build<S: Storage>(
 /// The settings a robot maps with when no host configures it: [`RunConfig::ROBOT`] (an LD06's
 /// range, 12 m; a sampler budget of one LD06 turn, 100 ms; seed 1) on a grid centred on where
 /// it was switched on, and no poses (it maps as a standing sensor: [`PoseInput::Fixed`]). A
-/// constant (a test checks it equals `RunConfig::robot`).
+/// constant (a test checks it equals `RunConfig::ROBOT`).
 pub const STORED_CONFIG: RunConfig = {
     let cell_mm = RunConfig::ROBOT.cell_mm as i64;
     let half_w = -((WIDTH as i64 * cell_mm / 2) as i32);

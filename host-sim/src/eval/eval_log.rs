@@ -48,6 +48,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::eval::baselines::{self, BaselineConfig, Method as BaselineMethod, SensorModel};
 use crate::eval::metrics::{mask_within, PrAccumulator, Summary};
+use crate::eval::noise::MIN_SIGMA_CELLS;
 use crate::eval::render;
 use crate::eval::report::{MapInfo, Report};
 use crate::eval::sampling::{run_sampler, SamplingConfig, Variant};
@@ -145,6 +146,10 @@ pub struct EvalLogArgs {
     /// Also write every map as a ROS map_server map (`.yaml` + trinary `.pgm`).
     #[arg(long)]
     pub export_ros: bool,
+    /// Seeded perturbation of the experiments' scans ([`crate::eval::perturb`]; the benchmark
+    /// is made from the unperturbed log).
+    #[command(flatten)]
+    pub perturb: crate::eval::perturb::PerturbArgs,
 }
 
 /// Replays recorded scans in order, like a sensor; `Err(EndOfLog)` after the last.
@@ -546,6 +551,15 @@ pub struct ExperimentReport {
     /// The forward model's σ (cells) the methods used.
     #[serde(default)]
     pub sigma_cells: f64,
+    /// The sensor's σ (cells) and share of hits without evidence the robot's settings were
+    /// made for (`RunConfig::with_sensor`; the estimate's [`NoiseEstimate::sensor`]).
+    ///
+    /// [`NoiseEstimate::sensor`]: crate::eval::noise::NoiseEstimate::sensor
+    #[serde(default)]
+    pub sensor: (f64, f64),
+    /// The perturbation of the experiment's scans, if any ([`crate::eval::perturb`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub perturbation: Option<crate::eval::perturb::PerturbStats>,
     /// Methods (`methods`, `methods_near_mapped`, ...), as in `eval-sim`.
     #[serde(flatten)]
     pub report: Report,
@@ -587,6 +601,7 @@ pub fn run(args: &EvalLogArgs) -> anyhow::Result<()> {
         None => vec![1, 2, 3],
     };
     let cfg = MethodsConfig::new(&args.map)?;
+    args.perturb.validate()?;
     let mut reports = Vec::new();
     for log in &logs {
         let dir = if logs.len() == 1 {
@@ -640,6 +655,15 @@ impl MethodsConfig {
         if let SensorModel::Gaussian { sigma_cells: s, .. } = &mut c.baseline.model {
             *s = sigma_cells;
         }
+        c
+    }
+
+    /// These settings with the robot's made for a sensor of σ `sensor.0` cells and a share
+    /// `sensor.1` of hits without evidence ([`SamplingConfig::sensor`]).
+    pub fn with_sensor(&self, sensor: (f64, f64)) -> MethodsConfig {
+        let mut c = self.clone();
+        c.sampling.sensor_sigma_cells = Some(sensor.0);
+        c.sampling.outlier_share = sensor.1;
         c
     }
 
@@ -798,10 +822,25 @@ fn eval_one(
     if args.export_ros {
         ogm_field::export::export_world(&out.join("ros").join("benchmark.yaml"), &world)?;
     }
+    // The experiments read the perturbed log (if asked); the benchmark above the unperturbed.
+    let (perturbed, perturbation) = if args.perturb.is_active() {
+        let (p, st) = crate::eval::perturb::perturb(
+            &setup.scans,
+            &args.perturb,
+            g.cell_mm(),
+            // Far outliers reach the sensor's own range (beyond the mapping cap they free space
+            // up to it, like a real far reading).
+            (setup.info.max_range_m() * 1000.0).clamp(0.0, f64::from(u32::MAX)) as u32,
+        );
+        eprintln!("{}: perturbed: {st:?}", setup.name);
+        (Some(p), Some(st))
+    } else {
+        (None, None)
+    };
     let mut exps = Vec::new();
     for &id in experiments {
         let e = Experiment::new(id)?;
-        let scans = e.select(&setup.scans);
+        let scans = e.select(perturbed.as_deref().unwrap_or(&setup.scans));
         let t = map_scans(g, setup.mapper, &scans)?;
         let near = mask_within(&t.observed, w, h, NEAR_MAPPED_CELLS);
         let mut maps: BTreeMap<String, Vec<f64>> = BTreeMap::new();
@@ -813,17 +852,23 @@ fn eval_one(
         let mut graph = None;
         // The sensor's noise, from this experiment's own data.
         let noise = crate::eval::noise::estimate(&g, &setup.mapper, &scans, &t.map);
+        // The forward models read the MAD's σ; the robot's settings the mixture's σ and τ.
         let cfg = &match (cfg.estimate_sigma, noise) {
-            (true, Some(n)) => cfg.with_sigma(n.sigma_cells.max(0.25)),
+            (true, Some(n)) => cfg
+                .with_sigma(n.sigma_cells.max(MIN_SIGMA_CELLS))
+                .with_sensor(n.sensor()),
             _ => cfg.clone(),
         };
         if let Some(n) = noise {
             eprintln!(
-                "{} experiment {id}: estimated range noise σ = {:.2} cells, {:.1} % outliers ({} hits){}",
+                "{} experiment {id}: estimated range noise σ = {:.2} cells, {:.1} % outliers ({} hits); mixture σ {:.2}, ε {:.1} %, unmatched {:.1} %{}",
                 setup.name,
                 n.sigma_cells,
                 100.0 * n.outlier_rate,
                 n.hits,
+                n.sigma_mixture,
+                100.0 * n.outlier_mixture,
+                100.0 * n.unmatched,
                 if cfg.estimate_sigma { "" } else { " (not used: --sigma-cells)" }
             );
         }
@@ -888,6 +933,8 @@ fn eval_one(
             seconds_per_map_sample: per_sample,
             noise,
             sigma_cells: cfg.sampling.sigma_cells,
+            sensor: cfg.sampling.sensor(),
+            perturbation,
             report,
         });
     }

@@ -5,6 +5,7 @@
 //! [`noise`] holds the settings matched to a sensor's range noise.
 
 pub mod noise;
+pub mod sensor;
 
 use serde::{Deserialize, Serialize};
 

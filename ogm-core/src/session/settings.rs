@@ -13,11 +13,15 @@ impl RunConfig {
     /// `free_update_q8` and, with `face_band`, the band of σ = `sigma_milli_cells`; default
     /// clamp. [`crate::Error::InvalidModel`] if the scale is out of range or σ rounds to 0 mm.
     pub fn mapper_config(&self) -> Result<MapperConfig> {
-        // Integer only: the firmware builds it (`with_free_scale` may take f64 arithmetic).
         let model = InverseSensorModel::hahnel_free_scaled(self.free_update_q8)?;
         let model = if self.face_band {
             let sigma_mm = u64::from(self.sigma_milli_cells) * u64::from(self.cell_mm) / 1000;
-            model.with_face_band(u32::try_from(sigma_mm).unwrap_or(u32::MAX))?
+            // The far edge is 0 for a band of 3 cells or more (the firmware's default); a
+            // narrower band (`RunConfig::with_sensor`) takes f64 arithmetic here, once per
+            // configuration, the same on the board and the host.
+            model
+                .with_face_band(u32::try_from(sigma_mm).unwrap_or(u32::MAX))?
+                .with_far_edge(self.band_far_edge_q8())?
         } else {
             model
         };
@@ -69,6 +73,23 @@ mod tests {
     use super::*;
     use crate::config::Budget;
     use crate::LogOdds;
+
+    /// A session's mapper gets the far edge of a band narrower than 3 cells (what eval-log's
+    /// robot mode maps with), and none at the firmware's σ = 3 cells.
+    #[test]
+    fn a_narrow_band_keeps_its_far_edge() {
+        let narrow = RunConfig::ROBOT.with_sensor(1.5, 0.0).unwrap();
+        assert!(narrow.face_band);
+        let far = narrow.band_far_edge_q8();
+        assert!(far > 0 && far < 256, "{far}");
+        let sigma_mm = narrow.sigma_milli_cells * narrow.cell_mm / 1000;
+        let want = InverseSensorModel::hahnel()
+            .with_face_band(sigma_mm)
+            .and_then(|m| m.with_far_edge(far))
+            .unwrap();
+        assert_eq!(narrow.mapper_config().unwrap().model, want);
+        assert_eq!(RunConfig::ROBOT.band_far_edge_q8(), 0);
+    }
 
     #[test]
     fn config_builds_the_models() {
