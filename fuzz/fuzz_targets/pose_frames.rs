@@ -61,6 +61,7 @@ enum Item {
         /// `Some`: an RPLIDAR with this sample period (0 is refused), else an LD06.
         rplidar_sample_us: Option<u16>,
         face_band: bool,
+        window_margin_cells: u16,
     },
     PaperConfig {
         origin_x_mm: i16,
@@ -167,6 +168,7 @@ fuzz_target!(|items: Vec<Item>| {
                 fixed_poses,
                 rplidar_sample_us,
                 face_band,
+                window_margin_cells,
             } => frame(
                 &mut bytes,
                 &HostMsg::Config(RunConfig {
@@ -223,6 +225,7 @@ fuzz_target!(|items: Vec<Item>| {
                         None => LidarModel::Ld06,
                     },
                     face_band,
+                    window_margin_cells,
                 }),
             ),
             Item::PaperConfig {

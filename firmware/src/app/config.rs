@@ -8,7 +8,7 @@ use ogm_core::session::{Buffers, Session, Storage};
 use ogm_core::wire::{ConfigFault, DeviceMsg, ErrorCode, Hello};
 
 use super::lidar::{built_for, Lidar};
-use super::{State, HEIGHT, MAX_BEAMS, SIZES, WIDTH};
+use super::{State, EDGE, HEIGHT, MAX_BEAMS, SIZES, WIDTH};
 use crate::platform::Platform;
 
 impl<S: Storage> State<'_, S> {
@@ -47,6 +47,16 @@ impl<S: Storage> State<'_, S> {
         // The tile stream is cut for the firmware's grid.
         if (usize::from(bufs.width), usize::from(bufs.height)) != (WIDTH, HEIGHT) {
             let detail = ConfigFault::Geometry.detail();
+            self.report_error(link, ErrorCode::BadConfig, detail);
+            return false;
+        }
+        // A rolling window moves by whole streamed tiles and needs its hysteresis band
+        // (`Session::window_fits`).
+        let margin = usize::from(config.window_margin_cells);
+        if margin > 0
+            && !(WIDTH % EDGE == 0 && HEIGHT % EDGE == 0 && margin + EDGE <= WIDTH.min(HEIGHT) / 2)
+        {
+            let detail = ConfigFault::Window.detail();
             self.report_error(link, ErrorCode::BadConfig, detail);
             return false;
         }

@@ -255,6 +255,10 @@ struct Totals {
     sampler_ticks: u64,
     updates: u64,
     max_insert_ticks: u32,
+    /// Window shifts, and the dearest one (streaming its leaving tiles and moving the
+    /// window), ticks.
+    shifts: u32,
+    max_shift_ticks: u32,
 }
 
 /// Beams per scan buffer.

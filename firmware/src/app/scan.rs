@@ -12,7 +12,7 @@ use ogm_core::Pose;
 
 use super::lidar::Lidar;
 use super::stream::mark_dirty;
-use super::{After, State};
+use super::{After, State, EDGE};
 use crate::platform::{Platform, Work};
 
 /// Sampler updates in the first call of a time budget, and the fewest in any call after it.
@@ -162,6 +162,23 @@ impl<S: Storage> State<'_, S> {
                 self.counters.beams_overflowed.saturating_add(overflow);
             self.report_error(link, ErrorCode::ScanOverflow, overflow);
         }
+        let t0 = platform.now();
+        // A rolling window moves before the scan that needs it is mapped (so that scan's rays
+        // stay inside it), its leaving tiles streamed first.
+        let shift = self
+            .session
+            .as_deref_mut()
+            .and_then(|m| m.check_shift(pose, EDGE as u16));
+        if let Some(shift) = shift {
+            self.shift_window(link, &shift);
+            let t = ticks(t0, platform.now());
+            self.totals.shifts += 1;
+            self.totals.max_shift_ticks = self.totals.max_shift_ticks.max(t);
+            info!(
+                "scan {=u32}: window shift ({=i32}, {=i32}) in {=u32} ticks",
+                seq, shift.dx, shift.dy, t
+            );
+        }
         let Some(m) = self.session.as_deref_mut() else {
             self.report_error(link, ErrorCode::NoConfig, 0);
             return;
@@ -174,7 +191,6 @@ impl<S: Storage> State<'_, S> {
             t_us,
             ..ScanReport::default()
         };
-        let t0 = platform.now();
         // Log-odds update, seeding of the cells observed for the first time, ray store and
         // first-occupied refresh in one step.
         let inserted = m.insert(pose, beams);

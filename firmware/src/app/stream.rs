@@ -3,13 +3,13 @@
 //! `Done`, the closing summary in the log).
 
 use embedded_io::Write;
-use ogm_core::session::{Session, Storage};
+use ogm_core::session::{Session, Shift, Storage};
 use ogm_core::wire::{
     self, DeviceError, DeviceMsg, Done, ErrorCode, Layer, LidarCounters, LinkCounters, Tile,
     TileRect,
 };
 
-use super::{State, EDGE, HEIGHT, TILES, TILES_X, WIDTH};
+use super::{State, EDGE, HEIGHT, TILES, TILES_X, TILES_Y, WIDTH};
 use crate::platform::Platform;
 
 /// Encodes `msg` into `tx` and writes it to `link`; failures are logged.
@@ -100,6 +100,41 @@ impl<S: Storage> State<'_, S> {
         }
     }
 
+    /// Moves the rolling window: announces where it will lie (`Window`), streams every leaving
+    /// tile that holds something (log-odds and estimates, in building tile coordinates;
+    /// all-unknown tiles are skipped: the host reads a missing tile as unknown), applies the
+    /// shift and moves the changed-tile marks with the window.
+    pub(super) fn shift_window<W: Write>(&mut self, link: &mut W, shift: &Shift) {
+        let Some(m) = self.session.as_deref_mut() else {
+            return;
+        };
+        let (tx, tile) = (&mut self.tx[..], &mut self.tile[..]);
+        send(tx, link, &DeviceMsg::Window(m.window_after(shift)));
+        for t in shift.leaving() {
+            if unknown(m, &t.rect) {
+                continue;
+            }
+            let (x, y) = t.rect.coords();
+            let n = usize::from(y) * TILES_X + usize::from(x);
+            send_tile(tx, tile, link, m, Layer::LogOdds, n);
+            send_tile(tx, tile, link, m, Layer::Counts, n);
+        }
+        if let Err(e) = m.apply_shift(shift) {
+            error!("window shift: {}", e.fault());
+            self.report_error(link, ErrorCode::Map, 0);
+            return;
+        }
+        let e = EDGE as i32;
+        ogm_core::map::shift::shift_bits(
+            &mut self.dirty,
+            TILES_X,
+            TILES_Y,
+            shift.dx / e,
+            shift.dy / e,
+            false,
+        );
+    }
+
     /// Sampler/store statistics and counters.
     pub(super) fn report<W: Write>(
         &mut self,
@@ -126,6 +161,15 @@ impl<S: Storage> State<'_, S> {
         lidar: LidarCounters,
     ) -> i32 {
         self.stream_tiles(link, true);
+        // Where the window ended (the final tiles are in building tile coordinates anyway).
+        if let Some(w) = self
+            .session
+            .as_deref()
+            .filter(|m| m.config().window_margin_cells > 0)
+            .map(Session::window)
+        {
+            self.send(link, &DeviceMsg::Window(w));
+        }
         self.report(link, link_counters, lidar);
         let stack = platform.stack_usage();
         let mut done = Done {
@@ -168,6 +212,13 @@ impl<S: Storage> State<'_, S> {
             t.cells / n,
             ns(t.insert_ticks) * 1000 / t.cells.max(1)
         );
+        if t.shifts > 0 {
+            info!(
+                "window: {=u32} shifts, the dearest {=u64} ns (streaming its tiles and moving)",
+                t.shifts,
+                ns(u64::from(t.max_shift_ticks))
+            );
+        }
         info!(
             "sampler: {=u64} updates, {=u64} ps per patch update",
             t.updates,
@@ -217,11 +268,20 @@ fn send_tile<W: Write, S: Storage>(
         }
     };
     let (tx_, ty_) = rect.coords();
+    // Where the tile lies in the building: the window's origin in tiles plus its place in it.
+    let w = m.window();
+    let e = EDGE as i32;
     let tile = Tile {
         layer,
-        tx: tx_,
-        ty: ty_,
+        tx: (w.origin_x / e).saturating_add(i32::from(tx_)),
+        ty: (w.origin_y / e).saturating_add(i32::from(ty_)),
         data,
     };
     send(tx, link, &DeviceMsg::Tile(tile));
+}
+
+/// Whether every log-odds cell of `rect` is 0 (never observed).
+fn unknown<S: Storage>(m: &Session<S>, rect: &TileRect) -> bool {
+    rect.cells()
+        .all(|i| m.log_odds().get(i).is_none_or(|l| l.raw() == 0))
 }

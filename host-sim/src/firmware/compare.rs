@@ -163,6 +163,17 @@ pub(super) fn compare(
             &host_updates,
         );
     }
+    // A rolling window: every shift announced alike, every leaving tile alike.
+    c.eq(|| "window reports".into(), &g.windows, &host.windows);
+    c.eq(
+        || "tiles that left the window".into(),
+        &g.shift_tiles.len(),
+        &host.shift_tiles.len(),
+    );
+    if g.shift_tiles != host.shift_tiles {
+        c.fail("the tiles that left the window differ from the host's".into());
+    }
+    c.checks += g.shift_tiles.len() as u64;
     c.eq(
         || "final tiles".into(),
         &g.final_tiles.len(),
@@ -189,10 +200,24 @@ pub(super) fn compare(
         &(done.scans, done.grid_fnv, done.counts_fnv),
         &(host_done.scans, host_done.grid_fnv, host_done.counts_fnv),
     );
-    // The map as streamed, cell for cell, against the host's engine.
+    // The map as streamed, cell for cell, against the host's engine: the tiles of the final
+    // window (tiles carry building coordinates; the window's origin is the last `Window`'s).
     let mut streamed = StreamedMap::new(w, h, edge);
+    let e = i32::from(FW.tile_edge);
+    let (ox, oy) = g
+        .windows
+        .last()
+        .map_or((0, 0), |r| (r.origin_x / e, r.origin_y / e));
+    let (tiles_x, tiles_y) = (i32::from(FW.width) / e, i32::from(FW.height) / e);
     for t in &g.all_tiles {
-        streamed.apply(t)?;
+        let (x, y) = (t.tx - ox, t.ty - oy);
+        if (0..tiles_x).contains(&x) && (0..tiles_y).contains(&y) {
+            streamed.apply(&ogm_field::stream::OwnedTile {
+                tx: x,
+                ty: y,
+                ..t.clone()
+            })?;
+        }
     }
     for (name, diff) in [
         ("log-odds", first_diff(&streamed.log_odds, &host_lo)),

@@ -23,6 +23,11 @@ pub(super) struct Groups {
     pub(super) errors: usize,
     pub(super) all_tiles: Vec<OwnedTile>,
     pub(super) idles: HashMap<u32, ogm_core::wire::IdleReport>,
+    /// Every `Window` message (a shift's announcement, and the end of the run's).
+    pub(super) windows: Vec<ogm_core::wire::WindowReport>,
+    /// The tiles that left the window, in the order streamed (between a shift's `Window` and
+    /// the scan that needed it).
+    pub(super) shift_tiles: Vec<OwnedTile>,
 }
 
 #[derive(Default)]
@@ -38,6 +43,7 @@ impl Groups {
     pub(super) fn of(events: &[DeviceEvent]) -> Groups {
         let mut g = Groups::default();
         let mut current: Option<u32> = None;
+        let mut in_shift = false;
         for ev in events {
             match ev {
                 DeviceEvent::Hello(h) => g.hello = Some(h.clone()),
@@ -51,13 +57,20 @@ impl Groups {
                         },
                     );
                     current = Some(r.seq);
+                    in_shift = false;
                 }
                 DeviceEvent::Tile(t) => {
                     g.all_tiles.push(t.clone());
                     match current.and_then(|s| g.scans.get_mut(&s)) {
                         Some(s) => s.tiles.push(t.clone()),
+                        None if in_shift => g.shift_tiles.push(t.clone()),
                         None => g.final_tiles.push(t.clone()),
                     }
+                }
+                DeviceEvent::Window(w) => {
+                    g.windows.push(*w);
+                    current = None;
+                    in_shift = true;
                 }
                 DeviceEvent::Sampler(r) => match current.and_then(|s| g.scans.get_mut(&s)) {
                     Some(s) => s.sampler = Some(*r),

@@ -46,5 +46,5 @@ pub use replay::{marginals, replay_map, sizes_of, HostMemory, ReplaySession, FIR
 pub use report::{
     print_report, Accuracy, AnytimePoint, Figures, FirmwareReport, NoiseReport, RobotReport,
 };
-pub use run::{cli, run, ROBOT_MOUNT_X_MM};
+pub use run::{cli, run, run_scans, ROBOT_MOUNT_X_MM};
 pub use setup::{firmware_world, run_config, sim_config};

@@ -198,6 +198,59 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     Ok(report)
 }
 
+/// The firmware in QEMU on given settings and scans (tunnelled with their poses, a fixed
+/// budget in `config` makes every figure repeatable), checked against the host replay like
+/// [`run`]; returns the report and the firmware's decoded stream (a rolling window's tiles,
+/// `Window` messages, ...). `None` for the report's QEMU part when the toolchain is missing is
+/// the caller's concern ([`toolchain_missing`]).
+pub fn run_scans(
+    config: &RunConfig,
+    scans: &[crate::sim::explore::ScanRecord],
+    timeout: Duration,
+) -> anyhow::Result<(FirmwareReport, Vec<DeviceEvent>)> {
+    let qemu_dir = repo_root().join("firmware/target/qemu");
+    std::fs::create_dir_all(&qemu_dir)?;
+    let input = encode_run_idle(config, scans, false, 1, &[])?;
+    let elf = build_elf(&qemu_dir.join("host-sim-build.log"))?;
+    let log = qemu_dir.join("host-sim-firmware.log");
+    let QemuRun {
+        stream,
+        status,
+        secs,
+        ..
+    } = run_qemu(&elf, &input.bytes, None, timeout, Some(&log))?;
+    let (events, ds) = decode_captured(&stream);
+    let groups = Groups::of(&events);
+    let mut report = FirmwareReport {
+        config: Some(*config),
+        scans_sent: input.scans,
+        input_bytes: input.bytes.len(),
+        log: Some(log),
+        qemu_seconds: secs,
+        exit_code: status.and_then(|s| s.code()),
+        stream_bytes: ds.bytes,
+        stream_frames: ds.frames,
+        stream_bad_frames: ds.bad_frames,
+        hello: groups.hello.clone(),
+        tiles: groups.all_tiles.len() as u64,
+        device_errors: groups.errors,
+        counters: groups.final_counters,
+        sampler: groups.final_sampler,
+        done: groups.done,
+        ..FirmwareReport::default()
+    };
+    let mut checker = Checker::default();
+    if let Err(e) = compare(&input.bytes, &[], &groups, &mut checker) {
+        checker.fail(format!("{e:#}"));
+    }
+    if let Some(h) = &groups.hello {
+        report.figures = figures(&groups, h);
+    }
+    report.mismatches = checker.mismatches;
+    report.checks = checker.checks;
+    Ok((report, events))
+}
+
 /// `--robot`: the robot loop in QEMU (see [`FirmwareArgs::robot`]).
 fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     ensure!(

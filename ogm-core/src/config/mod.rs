@@ -107,6 +107,14 @@ pub struct RunConfig {
     /// [`LidarModel::Ld06`].
     #[serde(default)]
     pub lidar: LidarModel,
+    /// The rolling window's margin, cells (wire version 6): when a scan's pose lies closer than
+    /// this to an edge of the grid, the session moves the grid by whole tiles so that the pose
+    /// is near its centre ([`crate::session::Session::shift_for`]); 0 = a fixed grid (the
+    /// default, and what a settings file without it reads). The window's log-odds equal those
+    /// of an unbounded map while the margin is at least the mapper's reach
+    /// ([`crate::map::mapper::reach_cells`]).
+    #[serde(default)]
+    pub window_margin_cells: u16,
 }
 
 /// The range sensor on the robot's own UART ([`crate::lidar::turn`]); scans a host tunnels do not use
@@ -229,6 +237,7 @@ impl RunConfig {
         },
         poses: PoseInput::Link,
         lidar: LidarModel::Ld06,
+        window_margin_cells: 0,
     };
 
     /// The robot's settings ([`Default`]; what the firmware runs with when no host configures
@@ -291,6 +300,15 @@ impl RunConfig {
     #[must_use]
     pub const fn with_budget(self, budget: Budget) -> Self {
         RunConfig { budget, ..self }
+    }
+
+    /// These settings with a rolling window of margin `cells` (0: a fixed grid).
+    #[must_use]
+    pub const fn with_window_margin_cells(self, cells: u16) -> Self {
+        RunConfig {
+            window_margin_cells: cells,
+            ..self
+        }
     }
 
     /// These settings with poses from `poses`.

@@ -67,6 +67,19 @@ impl<S: AsRef<[LogOdds]> + AsMut<[LogOdds]>> LogOddsGrid<S> {
         self.cells.as_mut().fill(value);
     }
 
+    /// Moves the grid by `(dx, dy)` whole cells ([`GridGeometry::shifted`]): cell `(x, y)` takes
+    /// the value of cell `(x + dx, y + dy)`, cells entering the grid are unknown (0). Returns
+    /// `false`, changing nothing, if the new origin leaves the `i32` mm range.
+    pub fn shift(&mut self, dx: i32, dy: i32) -> bool {
+        let Some(g) = self.geometry.shifted(dx, dy) else {
+            return false;
+        };
+        let (w, h) = (usize::from(g.width()), usize::from(g.height()));
+        crate::map::shift::shift_cells(self.cells.as_mut(), w, h, dx, dy, LogOdds::ZERO);
+        self.geometry = g;
+        true
+    }
+
     /// Adds `delta` to the cell at `index`, clamped; `false` if the index is out of range.
     #[inline]
     pub fn apply(&mut self, index: usize, delta: LogOdds, clamp: &Clamp) -> bool {

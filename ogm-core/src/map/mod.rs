@@ -6,3 +6,4 @@ pub mod grid;
 pub mod mapper;
 pub mod ray;
 pub mod sensor_model;
+pub mod shift;

@@ -165,6 +165,15 @@ where
         })
     }
 
+    /// Forgets every stored scan and ray and places the store on `geometry` (a rolling window
+    /// moved: [`crate::session::Session::apply_shift`]); its statistics go on counting.
+    pub fn clear_on(&mut self, geometry: GridGeometry) {
+        self.geometry = geometry;
+        self.n_scans = 0;
+        self.n_rays = 0;
+        self.decimation = 1;
+    }
+
     /// The grid the rays live on.
     pub fn geometry(&self) -> &GridGeometry {
         &self.geometry

@@ -16,6 +16,9 @@ pub struct Inserted<'b> {
     pub stats: ScanStats,
     /// The index range of the rays the store took (empty when the data term reads no rays).
     pub rays: core::ops::Range<usize>,
+    /// Beams whose rays left a rolling window (clipped to it; 0 with a fixed grid, whose
+    /// clipping is not counted).
+    pub beams_clipped: u32,
     geometry: GridGeometry,
     mapper: MapperConfig,
     pose: Pose,
@@ -48,6 +51,7 @@ where
     Inserted {
         stats,
         rays,
+        beams_clipped: 0,
         geometry: *mapper.grid().geometry(),
         mapper: *mapper.config(),
         pose: *pose,

@@ -34,8 +34,10 @@
 
 mod insert;
 mod settings;
+mod window;
 
 pub use insert::Inserted;
+pub use window::{LeavingTile, Shift};
 
 use crate::config::RunConfig;
 use crate::sampler::gibbs::{self, BorderPrior, Count, Gibbs, LocalRay};
@@ -160,6 +162,9 @@ pub enum SessionError {
     Store(crate::Error),
     /// The sampler (settings, buffers).
     Sampler(crate::Error),
+    /// The rolling window (a margin that leaves no band inside the grid, a shift that is not
+    /// this window's or cannot be made).
+    Window(crate::Error),
 }
 
 impl SessionError {
@@ -172,6 +177,7 @@ impl SessionError {
             SessionError::ForwardModel(_) => F::ForwardModel,
             SessionError::Store(_) => F::Store,
             SessionError::Sampler(_) => F::Sampler,
+            SessionError::Window(_) => F::Window,
         }
     }
 }
@@ -184,6 +190,7 @@ impl core::fmt::Display for SessionError {
             SessionError::ForwardModel(e) => ("forward model", e),
             SessionError::Store(e) => ("ray store", e),
             SessionError::Sampler(e) => ("sampler", e),
+            SessionError::Window(e) => ("rolling window", e),
         };
         write!(f, "{what}: {e}")
     }
@@ -207,6 +214,7 @@ pub struct Session<S: Storage> {
     mapper: Mapper<S::Grid, S::Marks>,
     store: RayStore<S::Scans, S::Rays>,
     gibbs: SessionGibbs<S>,
+    window: window::WindowState,
 }
 
 impl<S: Storage> Session<S> {
@@ -216,6 +224,10 @@ impl<S: Storage> Session<S> {
         let geometry = config
             .geometry(buffers.width, buffers.height)
             .map_err(SessionError::Geometry)?;
+        let margin = u32::from(config.window_margin_cells);
+        if 2 * margin >= u32::from(buffers.width.min(buffers.height)) {
+            return Err(SessionError::Window(crate::Error::InvalidGeometry));
+        }
         let grid = LogOddsGrid::new(geometry, buffers.grid).map_err(SessionError::Geometry)?;
         let mapper_config = config.mapper_config().map_err(SessionError::Mapper)?;
         let mapper =
@@ -252,6 +264,7 @@ impl<S: Storage> Session<S> {
             mapper,
             store,
             gibbs,
+            window: window::WindowState::default(),
         };
         s.reset()?;
         Ok(s)
@@ -266,7 +279,9 @@ impl<S: Storage> Session<S> {
 
     /// Integrates a scan taken at `pose`: log-odds update, seeding of the cells it observes for
     /// the first time in the sampler's sample, its rays into the store when the data term reads
-    /// rays. Fails only if the mapper rejects the scan, which a session's mapper (its marks
+    /// rays. With a rolling window, call [`Session::shift_for`] (and stream and apply its shift)
+    /// first; beams whose rays leave the window are clipped and counted
+    /// ([`Inserted::beams_clipped`]). Fails only if the mapper rejects the scan, which a session's mapper (its marks
     /// checked when built, a ray model: the settings cannot name the cone model) never does.
     // Out of line: inlined into the firmware's scan step, the sweep's register allocation
     // followed whatever code surrounds the call (+0.8 % of its instructions on the M4 from a
@@ -274,6 +289,11 @@ impl<S: Storage> Session<S> {
     // and 0.3 % over the inlined original in the self-test.
     #[inline(never)]
     pub fn insert<'b>(&mut self, pose: &Pose, beams: &'b [Beam]) -> crate::Result<Inserted<'b>> {
+        let clipped = if self.config.window_margin_cells > 0 {
+            self.count_clipped(pose, beams)
+        } else {
+            0
+        };
         let done = insert::insert_and_seed(
             &mut self.mapper,
             &mut self.store,
@@ -281,7 +301,9 @@ impl<S: Storage> Session<S> {
             pose,
             beams,
         )?;
-        Ok(insert::inserted(&self.mapper, pose, beams, done))
+        let mut inserted = insert::inserted(&self.mapper, pose, beams, done);
+        inserted.beams_clipped = clipped;
+        Ok(inserted)
     }
 
     /// Runs `updates` patch updates of the sampler (bounded work: a few hundred to a few

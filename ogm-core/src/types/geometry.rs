@@ -187,6 +187,19 @@ impl GridGeometry {
         })
     }
 
+    /// The same grid moved by `(dx, dy)` whole cells (cell `(x, y)` of the result is cell
+    /// `(x + dx, y + dy)` of `self`); `None` if the origin would leave the `i32` mm range.
+    pub fn shifted(&self, dx: i32, dy: i32) -> Option<Self> {
+        let s = i64::from(self.cell_mm);
+        let ox = i64::from(self.origin_x_mm).checked_add(i64::from(dx).checked_mul(s)?)?;
+        let oy = i64::from(self.origin_y_mm).checked_add(i64::from(dy).checked_mul(s)?)?;
+        Some(GridGeometry {
+            origin_x_mm: i32::try_from(ox).ok()?,
+            origin_y_mm: i32::try_from(oy).ok()?,
+            ..*self
+        })
+    }
+
     /// Range in cells (rounded down) of a distance in mm.
     pub fn mm_to_cells(&self, mm: u32) -> u32 {
         mm / self.cell_mm

@@ -37,6 +37,8 @@ pub enum DeviceMsg<'a> {
     /// The latest scan's ranges, for a live view (after its [`DeviceMsg::Scan`]).
     #[serde(borrow)]
     Ranges(ScanRanges<'a>),
+    /// The rolling window moved (before the tiles that left it) or the run ends (version 6).
+    Window(WindowReport),
 }
 
 /// Sent once at boot: what this firmware is and its compile-time sizes.
@@ -302,6 +304,9 @@ detail_enum! {
         ///
         /// [`LidarModel::is_valid`]: crate::config::LidarModel::is_valid
         Lidar = 6 => "lidar",
+        /// The rolling window's margin does not fit the grid and its tiles
+        /// (`Session::window_fits`).
+        Window = 7 => "rolling window",
     }
 }
 
@@ -364,4 +369,31 @@ pub struct IdleReport {
     pub sampler_updates: u32,
     /// Board timer ticks they took.
     pub sampler_ticks: u32,
+}
+
+/// The rolling window (wire version 6): where it lies in the building and what moving it did.
+/// The building frame's cell (0, 0) is the one at the settings' origin
+/// ([`RunConfig::origin_x_mm`], [`RunConfig::origin_y_mm`]); window cell `(x, y)` is building
+/// cell `(origin_x + x, origin_y + y)`.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct WindowReport {
+    /// The window's lower-left cell, building frame (a multiple of the tile edge).
+    pub origin_x: i32,
+    /// The same, y.
+    pub origin_y: i32,
+    /// Shifts so far.
+    pub shifts: u32,
+    /// Tiles that left the window (each streamed before the shift, unless all unknown).
+    pub tiles_out: u32,
+    /// Shifts refused: the window's origin would leave the `i32` mm range.
+    pub shifts_refused: u32,
+    /// Scans with a beam whose ray left the window (clipped).
+    pub scans_clipped: u32,
+    /// Beams whose ray left the window (clipped).
+    pub beams_clipped: u32,
+    /// Stored tiles the host sent back that were applied.
+    pub tiles_restored: u32,
+    /// Stored tiles refused (outside the window, wrong size, already mapped).
+    pub restore_refused: u32,
 }

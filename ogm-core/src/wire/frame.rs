@@ -229,6 +229,7 @@ mod tests {
             lidar: LidarModel::Rplidar {
                 sample_us: u16::MAX,
             },
+            window_margin_cells: u16::MAX,
         }
     }
 
@@ -282,8 +283,8 @@ mod tests {
         let data = [0xA5u8; MAX_TILE_BYTES];
         let t = DeviceMsg::Tile(Tile {
             layer: Layer::LogOdds,
-            tx: u16::MAX,
-            ty: u16::MAX,
+            tx: i32::MIN,
+            ty: i32::MIN,
             data: &data,
         });
         let mut big = [0u8; MAX_DEVICE_FRAME];

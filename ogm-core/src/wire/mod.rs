@@ -34,7 +34,7 @@ mod tile;
 
 pub use device::{
     ConfigFault, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello, IdleReport,
-    LidarCounters, LinkCounters, LinkFault, SamplerReport, ScanReport, StoreReport,
+    LidarCounters, LinkCounters, LinkFault, SamplerReport, ScanReport, StoreReport, WindowReport,
 };
 pub use error::WireError;
 pub use fnv::{fnv1a, grid_fnv, FNV_START};
@@ -50,4 +50,4 @@ pub use tile::{
 };
 
 /// Schema version, the first byte of every frame.
-pub const VERSION: u8 = 5;
+pub const VERSION: u8 = 6;

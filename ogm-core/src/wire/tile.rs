@@ -14,10 +14,12 @@ pub const MAX_TILE_BYTES: usize = 512;
 pub struct Tile<'a> {
     /// Which map.
     pub layer: Layer,
-    /// Tile column (cells `tx·edge ..`).
-    pub tx: u16,
-    /// Tile row.
-    pub ty: u16,
+    /// Tile column in the building's tiling (cells `tx·edge ..` of the building frame, whose
+    /// cell (0, 0) is the one at the settings' origin; wire version 6). With a fixed grid the
+    /// window never moves and this is the grid's own tile column.
+    pub tx: i32,
+    /// Tile row in the building's tiling.
+    pub ty: i32,
     /// The cells (see [`Layer`]); tiles at the map's edge may be smaller than `edge²`.
     pub data: &'a [u8],
 }
@@ -178,9 +180,9 @@ pub fn encode_tile<'b>(
     Ok(out)
 }
 
-/// Writes a received tile's cells into `sink`; [`WireError::Tile`] if the tile lies outside a
-/// `width × height` map cut into `edge`-cell tiles or its data has the wrong length (nothing is
-/// written then).
+/// Writes a received tile's cells into `sink`, a `width × height` map cut into `edge`-cell tiles
+/// whose tile (0, 0) is the building's; [`WireError::Tile`] if the tile lies outside it or its
+/// data has the wrong length (nothing is written then).
 pub fn decode_tile(
     tile: &Tile<'_>,
     width: usize,
@@ -188,7 +190,11 @@ pub fn decode_tile(
     edge: usize,
     sink: &mut impl TileSink,
 ) -> Result<TileRect, WireError> {
-    let rect = TileRect::new(width, height, edge, tile.tx, tile.ty).ok_or(WireError::Tile)?;
+    let (tx, ty) = (
+        u16::try_from(tile.tx).map_err(|_| WireError::Tile)?,
+        u16::try_from(tile.ty).map_err(|_| WireError::Tile)?,
+    );
+    let rect = TileRect::new(width, height, edge, tx, ty).ok_or(WireError::Tile)?;
     if tile.data.len() != rect.data_len(tile.layer) {
         return Err(WireError::Tile);
     }

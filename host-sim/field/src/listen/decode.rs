@@ -185,6 +185,10 @@ impl Listener {
                 notices.push(Notice::Done(d));
             }
             DeviceEvent::Idle(_) => {}
+            // A rolling window: this map is the Hello's grid at building tile (0, 0); tiles that
+            // lie outside it are refused and counted as before. A growing, stitched map is the
+            // host side of issue 38 (docs/wire.md, "Rolling window").
+            DeviceEvent::Window(_) => {}
             DeviceEvent::Ranges(r) => self.scan_ranges(&r, notices),
         }
     }

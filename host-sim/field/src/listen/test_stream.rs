@@ -79,8 +79,8 @@ pub(super) fn stream(seqs: &[u32]) -> Vec<u8> {
         for (layer, data) in [(Layer::LogOdds, &lo), (Layer::Counts, &counts)] {
             s.extend(frame(&DeviceMsg::Tile(Tile {
                 layer,
-                tx,
-                ty,
+                tx: tx.into(),
+                ty: ty.into(),
                 data,
             })));
         }

@@ -30,6 +30,8 @@ pub enum DeviceEvent {
     Idle(wire::IdleReport),
     /// A scan's ranges.
     Ranges(OwnedRanges),
+    /// The rolling window moved, or the run ends with one (wire version 6).
+    Window(wire::WindowReport),
 }
 
 impl From<DeviceMsg<'_>> for DeviceEvent {
@@ -53,6 +55,7 @@ impl From<DeviceMsg<'_>> for DeviceEvent {
                 seq: r.seq,
                 data: r.data.to_vec(),
             }),
+            DeviceMsg::Window(w) => DeviceEvent::Window(w),
         }
     }
 }
@@ -113,10 +116,10 @@ impl From<&Hello<'_>> for OwnedHello {
 pub struct OwnedTile {
     /// Which map.
     pub layer: Layer,
-    /// Tile column.
-    pub tx: u16,
-    /// Tile row.
-    pub ty: u16,
+    /// Tile column in the building's tiling (the grid's own with a fixed window).
+    pub tx: i32,
+    /// Tile row in the building's tiling.
+    pub ty: i32,
     /// Cells.
     pub data: Vec<u8>,
 }

@@ -41,7 +41,7 @@ mod update;
 pub use classify::{classify_scan, CellUpdate};
 pub use listener::{notable, Reports, UpdateListener};
 pub use marks::marks_len;
-pub use rays::scan_box;
+pub use rays::{beams_leaving, reach_cells, scan_box};
 
 use crate::error::{Error, Result};
 use crate::map::grid::LogOddsGrid;
@@ -86,6 +86,13 @@ where
             marks,
             config,
         })
+    }
+
+    /// Moves the map by `(dx, dy)` whole cells ([`LogOddsGrid::shift`]); `false` if the new
+    /// origin leaves the `i32` mm range (nothing changes then). The per-scan marks are zero
+    /// between scans and stay so.
+    pub fn shift(&mut self, dx: i32, dy: i32) -> bool {
+        self.grid.shift(dx, dy)
     }
 
     /// Integrates one scan taken at `pose`.

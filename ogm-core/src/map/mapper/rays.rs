@@ -196,6 +196,32 @@ pub fn scan_box(
     (lo, hi)
 }
 
+/// How far from the pose's cell, in cells, a scan's rays can change anything: the longest traced
+/// ray (a hit just below the maximum range plus its face band) rounded up, plus one cell for the
+/// pose's position inside its cell. A pose whose cell lies at least this far inside every edge
+/// of the grid has no ray that leaves it.
+pub fn reach_cells(g: &GridGeometry, cfg: &MapperConfig) -> u32 {
+    let traced = Band::traced(Band::of(cfg), cfg.max_range_mm, true);
+    traced.div_ceil(g.cell_mm().max(1)).saturating_add(1)
+}
+
+/// The beams of a scan whose traced ray ends outside the grid (the mapper clips them to it):
+/// the beams [`scan_box`] counts, with the same end cells.
+pub fn beams_leaving(g: &GridGeometry, cfg: &MapperConfig, pose: &Pose, beams: &[Beam]) -> u32 {
+    let rays = Rays::new(g, pose);
+    let band = Band::of(cfg);
+    let mut n = 0u32;
+    for b in beams {
+        let Some((range, hit)) = beam_extent(cfg, b) else {
+            continue;
+        };
+        if !g.contains(rays.end(Band::traced(band, range, hit), b.angle)) {
+            n = n.saturating_add(1);
+        }
+    }
+    n
+}
+
 /// The range a beam is traced to, and whether it ends in a hit.
 pub(super) fn beam_extent(cfg: &MapperConfig, beam: &Beam) -> Option<(u32, bool)> {
     match beam.range {

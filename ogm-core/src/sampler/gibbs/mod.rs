@@ -54,6 +54,7 @@ mod priors;
 mod rays;
 mod schedule;
 mod segment;
+mod shift;
 mod sweep;
 mod update;
 

@@ -110,6 +110,43 @@ impl HotTiles {
         self.marked = 0;
     }
 
+    /// Moves the marks and ages with a map shifted by `(dtx, dty)` whole tiles: group `g` takes
+    /// what group `g + d` had; groups entering are unmarked and new (age 0). A shift that is
+    /// not a whole number of groups clears everything.
+    pub(crate) fn shift(&mut self, dtx: i32, dty: i32) {
+        let gs = 1i32 << self.group_shift;
+        if dtx % gs != 0 || dty % gs != 0 {
+            self.clear();
+            return;
+        }
+        let (dgx, dgy) = (i64::from(dtx / gs), i64::from(dty / gs));
+        let gx_n = i64::from(self.groups_x.max(1));
+        let gy_n = i64::from(self.groups.div_ceil(self.groups_x.max(1)));
+        let (bits, ages) = (self.bits, self.ages);
+        self.clear();
+        let mut marked = 0;
+        for gy in 0..gy_n {
+            for gx in 0..gx_n {
+                let (sx, sy) = (gx + dgx, gy + dgy);
+                if !(0..gx_n).contains(&sx) || !(0..gy_n).contains(&sy) {
+                    continue;
+                }
+                let (src, dst) = ((sy * gx_n + sx) as usize, (gy * gx_n + gx) as usize);
+                if let (Some(&a), Some(d)) = (ages.get(src), self.ages.get_mut(dst)) {
+                    *d = a;
+                }
+                let set = bits.get(src / 32).is_some_and(|w| w >> (src % 32) & 1 != 0);
+                if set {
+                    if let Some(w) = self.bits.get_mut(dst / 32) {
+                        *w |= 1 << (dst % 32);
+                        marked += 1;
+                    }
+                }
+            }
+        }
+        self.marked = marked;
+    }
+
     /// Marked groups.
     #[cfg(test)]
     pub(crate) fn marked(&self) -> u32 {
@@ -260,6 +297,28 @@ mod tests {
         assert_eq!(h.visit_age(99, 99), 0, "out of range");
         h.clear();
         assert_eq!(h.visit_age(5, 5), 0);
+    }
+
+    #[test]
+    fn marks_and_ages_move_with_a_shift() {
+        let mut h = HotTiles::new(8, 8);
+        h.mark(3, 4);
+        h.mark(0, 0);
+        for _ in 0..5 {
+            h.visit_age(5, 5);
+        }
+        h.shift(2, -1);
+        // Group (3, 4) is now (1, 5); (0, 0) left; (5, 5)'s age is at (3, 6).
+        assert_eq!(h.marked(), 1);
+        assert!(h.is_marked(1, 5));
+        assert_eq!(h.visit_age(3, 6), 5);
+        assert_eq!(h.visit_age(7, 0), 0, "entering groups are new");
+        h.shift(100, 0);
+        assert_eq!(h.marked(), 0);
+        let mut g = HotTiles::new(100, 70);
+        g.mark(8, 8);
+        g.shift(1, 0);
+        assert_eq!(g.marked(), 0, "not a whole group: cleared");
     }
 
     #[test]
