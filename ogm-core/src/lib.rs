@@ -46,6 +46,7 @@ pub mod types;
 pub mod config;
 pub mod wire;
 
+pub mod localize;
 pub mod map;
 pub mod sampler;
 

@@ -1,0 +1,477 @@
+//! The matcher: Gauss–Newton on the pyramid, then the quality probes and the verdict (see the
+//! [module docs](crate::localize)).
+//!
+//! The state is the correction relative to the prediction: `dx`, `dy` in sub-cells and `dth` in
+//! 1/256 angle unit. Working on the correction keeps the numbers small whatever the pose (the
+//! window bounds it), and the prior and the window are then tests on the state itself.
+
+use crate::localize::field::{Field, MapView, Ramp, ONE};
+use crate::localize::points::ScanPoint;
+use crate::localize::solve::{eigen2, solve3};
+use crate::localize::{MatchConfig, MAX_LEVEL, MAX_POINTS, SUB};
+use crate::types::angle::Angle;
+use crate::types::geometry::Pose;
+
+/// How far a prediction may lie from the grid's origin, in sub-cells, before the match gives up
+/// (no point can reach the grid from there). Keeps every position in `i32`: a position is at most
+/// this plus the window plus a point's reach (2²⁴), far below 2³¹.
+const MAX_POSE_SUB: i64 = 1 << 27;
+
+/// Largest window, in sub-cells (the window is clamped to it).
+const MAX_WINDOW_SUB: i64 = 1 << 26;
+
+/// `2^24 / 2π · 2^16`: radians (Q-anything) → 1/256 angle units, with a 16-bit shift.
+const Q8_UNITS_PER_RAD_Q16: i64 = 683_565_276;
+
+/// `2π · 2^16`: 1/256 angle units → radians, with a 32-bit shift.
+const TWO_PI_Q16: i64 = 411_775;
+
+/// Levers (the rotation's scale `2^s` cells) are kept in `0..=MAX_LEVER`.
+const MAX_LEVER: u32 = 14;
+
+/// Jacobian entries are clamped to this magnitude (rotation terms of absurdly far points):
+/// with at most [`MAX_POINTS`] points every sum of products stays below 2⁶⁰.
+const J_LIM: i64 = 1 << 23;
+
+/// Whether a match can be trusted, and if not, why.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Verdict {
+    /// The map constrains every direction and the rotation: use the corrected pose.
+    Trusted,
+    /// One direction of translation is not constrained (a corridor, a single wall): the pose
+    /// along `weak_axis` (world frame, an axis: ± half a turn) is the prediction's, pulled there by
+    /// the prior; across it the match is good.
+    Ambiguous {
+        /// The direction the map leaves open.
+        weak_axis: Angle,
+    },
+    /// The rotation is not constrained (e.g. a round room, or a few points in one spot).
+    AmbiguousRotation,
+    /// Fewer usable points than [`MatchConfig::min_points`] (a lidar that sees nothing).
+    TooFewPoints,
+    /// Too few points land on occupied cells: a new area, or a prediction far off the map.
+    NoOverlap,
+    /// The correction reached the edge of the search window: odometry jumped, or the match ran
+    /// away.
+    OutOfWindow,
+}
+
+impl Verdict {
+    /// Whether the corrected pose may be used.
+    pub fn is_trusted(&self) -> bool {
+        matches!(self, Verdict::Trusted)
+    }
+}
+
+/// How good the match is, at the final pose.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Quality {
+    /// Points matched.
+    pub points: u16,
+    /// Points on occupied cells (map value ≥ ½, nearest cell).
+    pub matched: u16,
+    /// Σ map value over the points (nearest cell, Q15: [`field::ONE`](crate::localize::field::ONE)
+    /// per point on a fully occupied cell).
+    pub score: u32,
+    /// Share of the score (‰) lost by moving the points `probe_mm` along the weakest direction.
+    pub drop_weak: u16,
+    /// The same along the strongest direction.
+    pub drop_strong: u16,
+    /// The weakest direction (world frame, an axis).
+    pub weak_axis: Angle,
+    /// Share of the score (‰) lost by turning the points by the probe angle.
+    pub drop_turn: u16,
+    /// Points inside the grid in the last Gauss–Newton pass.
+    pub inside: u16,
+}
+
+/// Work a call did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Work {
+    /// Cell reads (the bound of each pass it ran, plus the probes).
+    pub reads: u32,
+    /// Gauss–Newton passes.
+    pub passes: u16,
+    /// The coarsest level the match ran (it may have been cut short by the budget).
+    pub finest_level: u8,
+}
+
+/// A match's outcome.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MatchResult {
+    /// Where the matcher ended (the prediction if it never started).
+    pub pose: Pose,
+    /// The prediction it started from.
+    pub predicted: Pose,
+    /// Whether `pose` can be trusted.
+    pub verdict: Verdict,
+    /// The measures the verdict rests on.
+    pub quality: Quality,
+    /// The work done.
+    pub work: Work,
+}
+
+impl MatchResult {
+    /// The pose to map with: the corrected one if trusted, else the prediction.
+    pub fn accepted(&self) -> Pose {
+        if self.verdict.is_trusted() {
+            self.pose
+        } else {
+            self.predicted
+        }
+    }
+}
+
+/// The Gauss–Newton normal equations of one pass.
+#[derive(Clone, Copy, Debug, Default)]
+struct Normal {
+    h: [[i64; 3]; 3],
+    b: [i64; 3],
+    used: u32,
+}
+
+/// The running correction.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct State {
+    dx: i32,
+    dy: i32,
+    /// 1/256 angle unit.
+    dth: i32,
+}
+
+/// Everything a pass needs that does not change during the match.
+struct Frame<'a> {
+    field: Field<'a>,
+    points: &'a [ScanPoint],
+    /// The prediction in sub-cells of the grid.
+    gx0: i32,
+    gy0: i32,
+    /// The prediction's heading, 1/256 angle unit (2^24 per turn).
+    th0: u32,
+    /// `log2` of the rotation's lever, cells.
+    lever: u32,
+}
+
+impl Frame<'_> {
+    /// The heading of a state, rounded to an angle unit.
+    fn heading(&self, s: &State) -> Angle {
+        let q = self.th0.wrapping_add(s.dth as u32).wrapping_add(128);
+        Angle(((q >> 8) & 0xFFFF) as u16)
+    }
+
+    /// Position (sub-cells) and rotation (Q30) of a state.
+    fn transform(&self, s: &State) -> (i32, i32, i64, i64) {
+        let (c, sn) = self.heading(s).cos_sin_q30();
+        (
+            self.gx0 + s.dx,
+            self.gy0 + s.dy,
+            i64::from(c),
+            i64::from(sn),
+        )
+    }
+
+    /// One pass at `level` over every `2^level`-th point: the normal equations (Jacobians per
+    /// cell of the level, rotation as `φ = θ · 2^lever_k` level cells).
+    fn pass(&self, s: &State, level: u8, lever_k: u32) -> Normal {
+        let (tx, ty, c, sn) = self.transform(s);
+        let k = u32::from(level);
+        let mut n = Normal::default();
+        let (mut h00, mut h01, mut h02, mut h11, mut h12, mut h22) = (0i64, 0, 0, 0, 0, 0);
+        let (mut b0, mut b1, mut b2) = (0i64, 0, 0);
+        for p in self.points.iter().step_by(1 << k) {
+            let (px, py) = (i64::from(p.x), i64::from(p.y));
+            // |p| < 2^24 and |c|, |s| ≤ 2^30: the rotated point is below 2^25 in magnitude.
+            let rx = ((px * c - py * sn) >> 30) as i32;
+            let ry = ((px * sn + py * c) >> 30) as i32;
+            let Some(sm) = self.field.sample(tx + rx, ty + ry, level) else {
+                continue;
+            };
+            n.used += 1;
+            let r = i64::from(ONE - sm.m);
+            let (jx, jy) = (i64::from(sm.dx), i64::from(sm.dy));
+            // dM/dθ = ∇M · (−ry, rx), the point in level cells; /2^lever_k for φ.
+            let jt = (-i64::from(ry >> k) * jx + i64::from(rx >> k) * jy) >> (8 + lever_k);
+            let jt = jt.clamp(-J_LIM, J_LIM);
+            h00 += jx * jx;
+            h01 += jx * jy;
+            h02 += jx * jt;
+            h11 += jy * jy;
+            h12 += jy * jt;
+            h22 += jt * jt;
+            b0 += jx * r;
+            b1 += jy * r;
+            b2 += jt * r;
+        }
+        n.h = [[h00, h01, h02], [h01, h11, h12], [h02, h12, h22]];
+        n.b = [b0, b1, b2];
+        n
+    }
+}
+
+/// Rotation offset (1/256 angle unit) as `φ` in Q8 level cells for a lever of `2^lever_k`.
+fn phi_q8(dth: i32, lever_k: u32) -> i64 {
+    (i64::from(dth) * TWO_PI_Q16) >> (32 - lever_k.min(31))
+}
+
+/// `φ` (Q8 level cells) back to 1/256 angle units.
+fn dth_of_phi(phi_q8: i64, lever_k: u32) -> i64 {
+    (phi_q8 * Q8_UNITS_PER_RAD_Q16) >> (16 + lever_k)
+}
+
+/// The prior's weight at a level: `prior_q16 / 2^16` of an ideal edge point's information
+/// (`ONE²` per level cell²) per point used.
+fn prior_weight(cfg: &MatchConfig, used: u32) -> i64 {
+    (i64::from(cfg.prior_q16) * i64::from(used)) << 14
+}
+
+/// `log2` of the points' mean Chebyshev distance in cells (at least 0): the rotation's lever.
+pub(crate) fn lever_of(points: &[ScanPoint]) -> u32 {
+    if points.is_empty() {
+        return 0;
+    }
+    let sum: i64 = points
+        .iter()
+        .map(|p| i64::from(p.x).abs().max(i64::from(p.y).abs()))
+        .sum();
+    let mean_cells = (sum / points.len() as i64) / i64::from(SUB);
+    if mean_cells <= 1 {
+        0
+    } else {
+        (63 - mean_cells.leading_zeros()).min(MAX_LEVER)
+    }
+}
+
+/// Matches `points` (from [`crate::localize::prepare_points`] for this grid's cell size)
+/// against `map`, starting from `predicted`. Never panics; reads at most
+/// [`MatchConfig::max_reads`] cells. An invalid `cfg` ([`MatchConfig::validate`]) gives
+/// [`Verdict::TooFewPoints`] without reading the map.
+pub fn match_scan(
+    map: &MapView<'_>,
+    points: &[ScanPoint],
+    predicted: &Pose,
+    cfg: &MatchConfig,
+) -> MatchResult {
+    let points = points.get(..points.len().min(MAX_POINTS)).unwrap_or(&[]);
+    let n = points.len();
+    let mut out = MatchResult {
+        pose: *predicted,
+        predicted: *predicted,
+        verdict: Verdict::TooFewPoints,
+        quality: Quality {
+            points: n.min(usize::from(u16::MAX)) as u16,
+            ..Quality::default()
+        },
+        work: Work::default(),
+    };
+    if cfg.validate().is_err() || n < usize::from(cfg.min_points).max(1) {
+        return out;
+    }
+    let g = map.geometry();
+    let cell = i64::from(g.cell_mm().max(1));
+    let (ox, oy) = g.origin_mm();
+    let to_sub = |mm: i64| (mm * i64::from(SUB)).div_euclid(cell);
+    let gx0 = to_sub(i64::from(predicted.x_mm) - i64::from(ox));
+    let gy0 = to_sub(i64::from(predicted.y_mm) - i64::from(oy));
+    if gx0.abs() > MAX_POSE_SUB || gy0.abs() > MAX_POSE_SUB {
+        out.verdict = Verdict::NoOverlap;
+        return out;
+    }
+    let frame = Frame {
+        field: Field::new(map, Ramp::new(cfg.floor, cfg.occupied)),
+        points,
+        gx0: gx0 as i32,
+        gy0: gy0 as i32,
+        th0: u32::from(predicted.heading.0) << 8,
+        lever: lever_of(points),
+    };
+    let win = to_sub(i64::from(cfg.max_shift_mm)).min(MAX_WINDOW_SUB) as i32;
+    let win_th = i32::from(cfg.max_turn.0.min(32767)) << 8;
+
+    // Gauss–Newton, coarse to fine.
+    let mut s = State::default();
+    let mut at_edge = false;
+    let mut reads = 0u64;
+    let budget = if cfg.budget_reads == 0 {
+        u64::MAX
+    } else {
+        u64::from(cfg.budget_reads)
+    };
+    'levels: for level in (0..=cfg.levels.min(MAX_LEVEL)).rev() {
+        let lever_k = frame.lever.saturating_sub(u32::from(level));
+        let cost = MatchConfig::pass_reads(level, n);
+        for _ in 0..cfg.iterations {
+            if reads + cost > budget {
+                break 'levels;
+            }
+            reads += cost;
+            out.work.passes = out.work.passes.saturating_add(1);
+            out.work.finest_level = level;
+            let ne = frame.pass(&s, level, lever_k);
+            out.quality.inside = ne.used.min(u32::from(u16::MAX)) as u16;
+            if ne.used == 0 {
+                break;
+            }
+            let Some(step) = gn_step(&ne, &s, level, lever_k, cfg) else {
+                break;
+            };
+            let k = u32::from(level);
+            let next = State {
+                dx: s.dx.saturating_add((step[0] as i32) << k),
+                dy: s.dy.saturating_add((step[1] as i32) << k),
+                dth: s.dth.saturating_add(dth_of_phi(step[2], lever_k) as i32),
+            };
+            let clamped = State {
+                dx: next.dx.clamp(-win, win),
+                dy: next.dy.clamp(-win, win),
+                dth: next.dth.clamp(-win_th, win_th),
+            };
+            at_edge = clamped != next;
+            s = clamped;
+            // Converged at this level: the step moved less than 1/16 of a level cell.
+            if step.iter().all(|v| v.abs() < i64::from(SUB) / 16) {
+                break;
+            }
+        }
+    }
+    out.work.reads = reads.min(u64::from(u32::MAX)) as u32;
+
+    // The corrected pose.
+    let mm = |sub: i32| (i64::from(sub) * cell).div_euclid(i64::from(SUB));
+    let sat = |v: i64| v.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
+    out.pose = Pose {
+        x_mm: sat(i64::from(predicted.x_mm) + mm(s.dx)),
+        y_mm: sat(i64::from(predicted.y_mm) + mm(s.dy)),
+        heading: frame.heading(&s),
+    };
+
+    // Quality probes and verdict.
+    let probe = to_sub(i64::from(cfg.probe_mm)).clamp(1, MAX_WINDOW_SUB) as i32;
+    out.quality = Quality {
+        inside: out.quality.inside,
+        ..probe_quality(&frame, &s, probe)
+    };
+    out.work.reads = out
+        .work
+        .reads
+        .saturating_add(MatchConfig::probe_reads(n) as u32);
+    out.verdict = verdict(&out.quality, at_edge, cfg);
+    out
+}
+
+/// One regularised Gauss–Newton step in Q8 level cells (x, y, φ), each at most one level cell.
+fn gn_step(ne: &Normal, s: &State, level: u8, lever_k: u32, cfg: &MatchConfig) -> Option<[i64; 3]> {
+    let k = u32::from(level);
+    let lam = prior_weight(cfg, ne.used);
+    let off = [
+        i64::from(s.dx >> k),
+        i64::from(s.dy >> k),
+        phi_q8(s.dth, lever_k),
+    ];
+    let mut h = ne.h;
+    let mut b = ne.b;
+    for i in 0..3 {
+        if let (Some(row), Some(bi), Some(o)) = (h.get_mut(i), b.get_mut(i), off.get(i)) {
+            if let Some(d) = row.get_mut(i) {
+                *d = d.saturating_add(lam);
+            }
+            // The prior pulls the correction back towards zero: −λ · offset (offset in Q8).
+            *bi = bi.saturating_sub((lam >> 8).saturating_mul(*o));
+        }
+    }
+    let step = solve3(&h, &b)?;
+    Some(step.map(|v| v.clamp(-i64::from(SUB), i64::from(SUB))))
+}
+
+/// The score of the points at the state, moved by each probe (four directions ±, two turns).
+fn probe_quality(frame: &Frame<'_>, s: &State, d: i32) -> Quality {
+    let (tx, ty, c, sn) = frame.transform(s);
+    // Diagonal component of the probe: d/√2, rounded.
+    let e = ((i64::from(d) * 46_341 + (1 << 15)) >> 16) as i32;
+    let offs: [(i32, i32); 8] = [
+        (d, 0),
+        (-d, 0),
+        (0, d),
+        (0, -d),
+        (e, e),
+        (-e, -e),
+        (-e, e),
+        (e, -e),
+    ];
+    let mut moved = [0i64; 8];
+    let (mut score, mut matched) = (0i64, 0u32);
+    let f = &frame.field;
+    for p in frame.points {
+        let (px, py) = (i64::from(p.x), i64::from(p.y));
+        let gx = tx + ((px * c - py * sn) >> 30) as i32;
+        let gy = ty + ((px * sn + py * c) >> 30) as i32;
+        let m = f.nearest(gx, gy);
+        score += i64::from(m);
+        matched += u32::from(m >= ONE / 2);
+        for (acc, (ox, oy)) in moved.iter_mut().zip(offs) {
+            *acc += i64::from(f.nearest(gx + ox, gy + oy));
+        }
+    }
+    // The turn that moves a point at the lever distance by `d`: d / 2^lever radians.
+    let turn = ((i64::from(d) * Q8_UNITS_PER_RAD_Q16) >> (16 + frame.lever)).max(256);
+    let mut turned = 0i64;
+    for sign in [1i64, -1] {
+        let ts = State {
+            dth: s.dth.saturating_add((sign * turn) as i32),
+            ..*s
+        };
+        let (tx, ty, c, sn) = frame.transform(&ts);
+        for p in frame.points {
+            let (px, py) = (i64::from(p.x), i64::from(p.y));
+            let gx = tx + ((px * c - py * sn) >> 30) as i32;
+            let gy = ty + ((px * sn + py * c) >> 30) as i32;
+            turned += i64::from(f.nearest(gx, gy));
+        }
+    }
+    let [xp, xm, yp, ym, dp, dm, ap, am] = moved;
+    // Loss of score along each axis (mean of ±), then the quadratic form's entries.
+    let lx = score - (xp + xm) / 2;
+    let ly = score - (yp + ym) / 2;
+    let ld = score - (dp + dm) / 2; // along 45°
+    let la = score - (ap + am) / 2; // along 135°
+    let (weak, strong, axis) = eigen2(lx, (ld - la) / 2, ly);
+    let lt = score - turned / 2;
+    let permille = |v: i64| {
+        if score <= 0 {
+            0
+        } else {
+            (v.max(0).saturating_mul(1000) / score).min(1000) as u16
+        }
+    };
+    Quality {
+        points: frame.points.len().min(usize::from(u16::MAX)) as u16,
+        matched: matched.min(u32::from(u16::MAX)) as u16,
+        score: score.clamp(0, i64::from(u32::MAX)) as u32,
+        drop_weak: permille(weak),
+        drop_strong: permille(strong),
+        weak_axis: axis,
+        drop_turn: permille(lt),
+        inside: 0,
+    }
+}
+
+/// The verdict from the quality measures (in the order the module docs give).
+fn verdict(q: &Quality, at_edge: bool, cfg: &MatchConfig) -> Verdict {
+    let n = u32::from(q.points);
+    if u32::from(q.matched) * 1000 < u32::from(cfg.min_overlap_permille) * n || q.matched == 0 {
+        Verdict::NoOverlap
+    } else if at_edge {
+        Verdict::OutOfWindow
+    } else if q.drop_turn < cfg.min_turn_drop_permille {
+        Verdict::AmbiguousRotation
+    } else if q.drop_weak < cfg.min_drop_permille {
+        Verdict::Ambiguous {
+            weak_axis: q.weak_axis,
+        }
+    } else {
+        Verdict::Trusted
+    }
+}

@@ -1,0 +1,199 @@
+//! Pose correction on the robot: scan-to-map matching against the robot's own log-odds map, so
+//! that wheel odometry is enough (issue 39). Imports [`crate::types`] and [`crate::map`] only.
+//!
+//! ## What it does
+//! [`match_scan`] takes a read-only map ([`MapView`]: the `LogOdds` cells and their
+//! [`crate::GridGeometry`]), a scan already turned into points ([`prepare_points`], robot frame,
+//! caller memory) and the pose odometry predicts, and returns a [`MatchResult`]: the corrected
+//! pose, a [`Quality`] and a [`Verdict`] that says whether the correction can be trusted. When it
+//! cannot (too few points, no overlap with the map, a correction outside the search window, a
+//! corridor or a single wall that leaves one direction unconstrained) the caller keeps mapping on
+//! odometry ([`MatchResult::accepted`]).
+//!
+//! ## How (Hector SLAM's Gauss–Newton on a coarse-to-fine pyramid, made integer)
+//! * **Map function.** A cell's log-odds `l` becomes a map value `M ∈ [0, 1]` (Q15) by a ramp:
+//!   0 at or below [`MatchConfig::floor`] (free and unknown cells: a point there is evidence of
+//!   nothing), 1 at or above [`MatchConfig::occupied`]. `M` between cell centres is bilinear, so
+//!   it has a gradient (Kohlbrecher et al. 2011, "A flexible and scalable SLAM system with full 3D
+//!   motion estimation").
+//! * **Pyramid without memory.** A level-`k` cell is a `2^k × 2^k` block of grid cells whose value
+//!   is the block's *maximum* (max-pooling keeps one-cell-thin walls, as Cartographer's
+//!   precomputation grids do). It is computed on the fly from the grid — no pooled copy is stored
+//!   (a 256 × 256 map has no RAM to spare for one) — so a level-`k` sample reads `4^(k+1)` cells;
+//!   coarse levels therefore use every `2^k`-th point only.
+//! * **Gauss–Newton.** From the coarsest level to the grid, up to [`MatchConfig::iterations`]
+//!   steps per level minimise `Σ (1 − M(T(ξ)·pᵢ))²` over the pose `ξ = (x, y, θ)`. Each step
+//!   accumulates `H = Σ JᵀJ`, `g = Σ Jᵀ(1 − M)` in `i64`, adds a weak prior that pulls towards the
+//!   odometry prediction ([`MatchConfig::prior_q16`]: in a corridor the unconstrained direction
+//!   stays where odometry put it instead of drifting on noise), and solves the 3 × 3 system by
+//!   Cramer's rule after scaling it into 19 bits. The rotation is solved as `φ = θ·2^s` cells
+//!   (`2^s` ≈ the points' mean distance) so that the three unknowns have comparable scale. A step
+//!   moves at most one cell of its level; the pose stays inside the search window
+//!   ([`MatchConfig::max_shift_mm`], [`MatchConfig::max_turn`]).
+//! * **Quality (Olson 2009, "Real-time correlative scan matching", in miniature).** At the final
+//!   pose the score `S = Σ M` (nearest cell) is compared with the score of the same points moved
+//!   by [`MatchConfig::probe_mm`] in four directions (±) and turned by the angle that moves a point
+//!   at the mean distance as far. How much score each displacement loses fits a quadratic form
+//!   whose smaller eigenvalue is the *weakest* translation constraint and whose eigenvector is the
+//!   direction a corridor leaves open; the turn's loss is the rotation constraint. Small losses
+//!   mean the map cannot tell: [`Verdict::Ambiguous`], [`Verdict::AmbiguousRotation`].
+//!
+//! Why Gauss–Newton and not a correlative search first: on the shared logs odometry errs by a
+//! centimetre or two and a fraction of a degree between scans, well inside the basin of a two-level
+//! pyramid, and a window search costs its candidates × points × reads. See `NOTES-39.md` for the
+//! measurements the choice rests on.
+//!
+//! ## Work bound
+//! The unit of work is a cell read. A Gauss–Newton pass at level `k` over `n` points reads at most
+//! `4^(k+1) · ⌈n / 2^k⌉` cells ([`MatchConfig::pass_reads`]); the quality probes read `11 n`
+//! ([`MatchConfig::probe_reads`]). [`MatchConfig::budget_reads`] caps the passes: one that does
+//! not fit in what is left is not started (the match then ends at the level it reached), so a
+//! call reads at most `budget_reads + 11 n` cells; [`MatchConfig::max_reads`] gives the bound for
+//! `n` points and [`Work::reads`] what a call used. Per read the M4 spends a few instructions,
+//! per point and pass a few tens (`NOTES-39.md` has the measured instructions per scan).
+//!
+//! ## Fixed point
+//! Positions are in 1/256 cell ([`SUB`]) relative to the grid's origin, headings in 1/256 of an
+//! [`crate::Angle`] unit (2²⁴ per turn), map values Q15, Jacobians Q15 per cell, sums `i64`. Every
+//! value derived from input is clamped or saturated (points beyond [`MAX_POINT_SUB`], poses far
+//! outside the grid: no overlap), so no input panics or overflows. [`reference`] (feature
+//! `reference`) is the same algorithm in `f64`, which the tests compare against.
+
+pub mod field;
+pub mod matcher;
+pub mod points;
+mod solve;
+
+#[cfg(feature = "reference")]
+pub mod reference;
+
+pub use field::MapView;
+pub use matcher::{match_scan, MatchResult, Quality, Verdict, Work};
+pub use points::{prepare_points, PointStats, ScanPoint};
+
+use crate::error::{Error, Result};
+use crate::types::angle::Angle;
+use crate::types::fixed::LogOdds;
+
+/// Sub-cell resolution: positions are in `1/SUB` cell.
+pub const SUB: i32 = 256;
+
+/// Points farther than this from the robot (in sub-cells, i.e. 65 536 cells) are dropped: the
+/// widest grid has 65 535 columns, so such a point can never be compared with a cell, and the
+/// bound keeps every product in `i64`.
+pub const MAX_POINT_SUB: i64 = 1 << 24;
+
+/// The coarsest pyramid level: a level-3 cell is 8 × 8 grid cells and a sample reads 256 cells.
+pub const MAX_LEVEL: u8 = 3;
+
+/// At most this many points are matched per call (more are ignored): keeps every `i64` sum of
+/// the Gauss–Newton system below 2⁶⁰.
+pub const MAX_POINTS: usize = 8192;
+
+/// The matcher's settings. All distances in mm, so one config serves any cell size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MatchConfig {
+    /// Hits closer than this are not matched (robot body, sensor dead zone).
+    pub min_range_mm: u32,
+    /// Hits at or beyond this are not matched (far points are noisy and make the rotation
+    /// dominate the system).
+    pub max_range_mm: u32,
+    /// A hit closer than this to the last point kept (in the order of the beams) is skipped:
+    /// near the robot the beams crowd, and evenly spread points weigh every wall alike.
+    pub min_spacing_mm: u32,
+    /// Log-odds at or below which a cell's map value is 0 (free and unknown cells).
+    pub floor: LogOdds,
+    /// Log-odds at or above which a cell's map value is 1; must exceed `floor`.
+    pub occupied: LogOdds,
+    /// Coarsest pyramid level (0..=[`MAX_LEVEL`]); the match starts there.
+    pub levels: u8,
+    /// Gauss–Newton steps per level at most (a level ends early once a step is below 1/16 cell).
+    pub iterations: u8,
+    /// Weight of the pull towards the prediction, per point, as a fraction (Q16) of the
+    /// information one point on an ideal edge gives. Small: it only decides directions the map
+    /// leaves open.
+    pub prior_q16: u16,
+    /// The correction may move the pose this far from the prediction (per axis).
+    pub max_shift_mm: u32,
+    /// The correction may turn the pose this far from the prediction.
+    pub max_turn: Angle,
+    /// Displacement of the quality probes.
+    pub probe_mm: u32,
+    /// Fewer points than this: [`Verdict::TooFewPoints`].
+    pub min_points: u16,
+    /// At the final pose at least this share (‰) of the points must lie on occupied cells
+    /// (map value ≥ ½), else [`Verdict::NoOverlap`].
+    pub min_overlap_permille: u16,
+    /// Moving the points by `probe_mm` along the weakest direction must lose at least this share
+    /// (‰) of the score, else [`Verdict::Ambiguous`].
+    pub min_drop_permille: u16,
+    /// Turning the points by the probe angle must lose at least this share (‰) of the score,
+    /// else [`Verdict::AmbiguousRotation`].
+    pub min_turn_drop_permille: u16,
+    /// Cell reads allowed per call (see the module docs, "Work bound"); 0 = no limit.
+    pub budget_reads: u32,
+}
+
+impl Default for MatchConfig {
+    /// Settings measured on the shared CARMEN logs at 5 cm cells (`NOTES-39.md`).
+    fn default() -> Self {
+        MatchConfig {
+            min_range_mm: 100,
+            max_range_mm: 20_000,
+            min_spacing_mm: 30,
+            floor: LogOdds(0),
+            occupied: LogOdds(2048),
+            levels: 2,
+            iterations: 4,
+            prior_q16: 1024,
+            max_shift_mm: 300,
+            max_turn: Angle(1092), // 6°
+            probe_mm: 100,
+            min_points: 30,
+            min_overlap_permille: 300,
+            min_drop_permille: 150,
+            min_turn_drop_permille: 150,
+            budget_reads: 0,
+        }
+    }
+}
+
+impl MatchConfig {
+    /// Checks the settings: `floor < occupied`, `levels ≤ MAX_LEVEL`, a non-empty range.
+    pub fn validate(&self) -> Result<()> {
+        if self.floor.0 >= self.occupied.0
+            || self.levels > MAX_LEVEL
+            || self.min_range_mm >= self.max_range_mm
+        {
+            return Err(Error::InvalidModel);
+        }
+        Ok(())
+    }
+
+    /// Cell reads of one Gauss–Newton pass at `level` over `n` points.
+    pub fn pass_reads(level: u8, n: usize) -> u64 {
+        let level = u32::from(level.min(MAX_LEVEL));
+        let stride = 1usize << level;
+        (4u64 << (2 * level)) * n.div_ceil(stride) as u64
+    }
+
+    /// Cell reads of the quality probes over `n` points (the score at the pose, four
+    /// directions ±, two turns).
+    pub fn probe_reads(n: usize) -> u64 {
+        11 * n as u64
+    }
+
+    /// The most cells a call over `n` points reads: every level's iterations in full, or the
+    /// budget if that is smaller, plus the probes.
+    pub fn max_reads(&self, n: usize) -> u64 {
+        let n = n.min(MAX_POINTS);
+        let mut passes: u64 = (0..=self.levels.min(MAX_LEVEL))
+            .map(|k| u64::from(self.iterations) * MatchConfig::pass_reads(k, n))
+            .sum();
+        if self.budget_reads != 0 {
+            passes = passes.min(u64::from(self.budget_reads));
+        }
+        passes + MatchConfig::probe_reads(n)
+    }
+}
