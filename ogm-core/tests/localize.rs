@@ -468,3 +468,31 @@ proptest! {
         let _ = match_scan_f64(&map, &buf[..st.kept], &pose, &cfg);
     }
 }
+
+#[test]
+#[ignore]
+fn print_room_precision() {
+    let (g, cells) = room_map();
+    let map = MapView::new(&cells, g).unwrap();
+    for (levels, reach) in [(0u8, 0u8), (0, 1), (1, 1), (2, 1), (2, 0)] {
+        let cfg = MatchConfig {
+            levels,
+            reach,
+            ..MatchConfig::default()
+        };
+        let mut worst = (0.0f64, 0.0f64);
+        for truth in [(1200.0, 1000.0, 0.1), (3300.0, 1900.0, 0.7), (5000.0, 3000.0, 2.5), (2000.0, 2500.0, -2.0)] {
+            let pts = points(&scan(&room(), truth, 450, 10_000.0), &g, &cfg);
+            for (ox, oy, oth) in [(0.0, 0.0, 0.0f64), (30.0, -20.0, 0.5), (-60.0, 40.0, -1.0), (10.0, 10.0, 2.0)] {
+                let predicted = pose_of((truth.0 + ox, truth.1 + oy, truth.2 + oth.to_radians()));
+                let r = match_scan(&map, &pts, &predicted, &cfg);
+                let (d, a) = err(&r.pose, truth);
+                if levels == 2 && reach == 1 {
+                    println!("  {truth:?} + ({ox}, {oy}, {oth}°): {d:.1} mm {a:.3}° passes {} {:?}", r.work.passes, r.verdict);
+                }
+                worst = (worst.0.max(d), worst.1.max(a));
+            }
+        }
+        println!("levels {levels} reach {reach}: worst {:.1} mm {:.3}°", worst.0, worst.1);
+    }
+}

@@ -176,7 +176,7 @@ impl Frame<'_> {
 
     /// One pass at `level` over every `2^level`-th point: the normal equations (Jacobians per
     /// cell of the level, rotation as `φ = θ · 2^lever_k` level cells).
-    fn pass(&self, s: &State, level: u8, lever_k: u32) -> Normal {
+    fn pass(&self, s: &State, level: u8, reach: u8, lever_k: u32) -> Normal {
         let (tx, ty, c, sn) = self.transform(s);
         let k = u32::from(level);
         let mut n = Normal::default();
@@ -187,7 +187,7 @@ impl Frame<'_> {
             // |p| < 2^24 and |c|, |s| ≤ 2^30: the rotated point is below 2^25 in magnitude.
             let rx = ((px * c - py * sn) >> 30) as i32;
             let ry = ((px * sn + py * c) >> 30) as i32;
-            let Some(sm) = self.field.sample(tx + rx, ty + ry, level) else {
+            let Some(sm) = self.field.sample(tx + rx, ty + ry, level, reach) else {
                 continue;
             };
             n.used += 1;
@@ -302,7 +302,7 @@ pub fn match_scan(
     };
     'levels: for level in (0..=cfg.levels.min(MAX_LEVEL)).rev() {
         let lever_k = frame.lever.saturating_sub(u32::from(level));
-        let cost = MatchConfig::pass_reads(level, n);
+        let cost = cfg.pass_reads(level, n);
         for _ in 0..cfg.iterations {
             if reads + cost > budget {
                 break 'levels;
@@ -310,7 +310,7 @@ pub fn match_scan(
             reads += cost;
             out.work.passes = out.work.passes.saturating_add(1);
             out.work.finest_level = level;
-            let ne = frame.pass(&s, level, lever_k);
+            let ne = frame.pass(&s, level, cfg.reach, lever_k);
             out.quality.inside = ne.used.min(u32::from(u16::MAX)) as u16;
             if ne.used == 0 {
                 break;

@@ -108,6 +108,9 @@ pub struct MatchConfig {
     pub occupied: LogOdds,
     /// Coarsest pyramid level (0..=[`MAX_LEVEL`]); the match starts there.
     pub levels: u8,
+    /// Dilation of the map value, cells of each level (0..=[`field::MAX_REACH`]): a wall's value
+    /// falls off linearly over this many cells (see `field::dilate`).
+    pub reach: u8,
     /// Gauss–Newton steps per level at most (a level ends early once a step is below 1/16 cell).
     pub iterations: u8,
     /// Weight of the pull towards the prediction, per point, as a fraction (Q16) of the
@@ -145,6 +148,7 @@ impl Default for MatchConfig {
             floor: LogOdds(0),
             occupied: LogOdds(2048),
             levels: 2,
+            reach: 1,
             iterations: 4,
             prior_q16: 1024,
             max_shift_mm: 300,
@@ -164,6 +168,7 @@ impl MatchConfig {
     pub fn validate(&self) -> Result<()> {
         if self.floor.0 >= self.occupied.0
             || self.levels > MAX_LEVEL
+            || self.reach > field::MAX_REACH
             || self.min_range_mm >= self.max_range_mm
         {
             return Err(Error::InvalidModel);
@@ -172,10 +177,11 @@ impl MatchConfig {
     }
 
     /// Cell reads of one Gauss–Newton pass at `level` over `n` points.
-    pub fn pass_reads(level: u8, n: usize) -> u64 {
+    pub fn pass_reads(&self, level: u8, n: usize) -> u64 {
         let level = u32::from(level.min(MAX_LEVEL));
         let stride = 1usize << level;
-        (4u64 << (2 * level)) * n.div_ceil(stride) as u64
+        let side = 3 + 2 * u64::from(self.reach.min(field::MAX_REACH));
+        ((side * side) << (2 * level)) * n.div_ceil(stride) as u64
     }
 
     /// Cell reads of the quality probes over `n` points (the score at the pose, four
@@ -189,7 +195,7 @@ impl MatchConfig {
     pub fn max_reads(&self, n: usize) -> u64 {
         let n = n.min(MAX_POINTS);
         let mut passes: u64 = (0..=self.levels.min(MAX_LEVEL))
-            .map(|k| u64::from(self.iterations) * MatchConfig::pass_reads(k, n))
+            .map(|k| u64::from(self.iterations) * self.pass_reads(k, n))
             .sum();
         if self.budget_reads != 0 {
             passes = passes.min(u64::from(self.budget_reads));

@@ -95,23 +95,43 @@ impl RefField<'_> {
         Some(m)
     }
 
-    /// Bilinear value and gradient (per level cell) at (x, y) cells.
-    fn sample(&self, x: f64, y: f64, level: u8) -> Option<(f64, f64, f64)> {
+    /// The dilated value of level cell (i, j): max over L1 distance d ≤ reach of value − d/(reach+1).
+    fn dilated(&self, i: i64, j: i64, n: i64, reach: i64) -> Option<f64> {
+        let mut best = 0.0f64;
+        for dy in -reach..=reach {
+            for dx in -reach..=reach {
+                let d = (dx.abs() + dy.abs()) as f64;
+                let v = self.value(self.pooled(i + dx, j + dy, n)?);
+                best = best.max(v - d / (reach + 1) as f64);
+            }
+        }
+        Some(best)
+    }
+
+    /// Quadratic B-spline value and gradient (per level cell) at (x, y) cells.
+    fn sample(&self, x: f64, y: f64, level: u8, reach: u8) -> Option<(f64, f64, f64)> {
         let n = 1i64 << level;
-        let u = x / n as f64 - 0.5;
-        let v = y / n as f64 - 0.5;
+        let (u, v) = (x / n as f64, y / n as f64);
         let (i, j) = (libm::floor(u), libm::floor(v));
-        let (fx, fy) = (u - i, v - j);
+        let (tx, ty) = (u - i, v - j);
         let (i, j) = (i as i64, j as i64);
-        let m00 = self.value(self.pooled(i, j, n)?);
-        let m10 = self.value(self.pooled(i + 1, j, n)?);
-        let m01 = self.value(self.pooled(i, j + 1, n)?);
-        let m11 = self.value(self.pooled(i + 1, j + 1, n)?);
-        let a = m00 + (m10 - m00) * fx;
-        let b = m01 + (m11 - m01) * fx;
-        let m = a + (b - a) * fy;
-        let dx = (m10 - m00) * (1.0 - fy) + (m11 - m01) * fy;
-        Some((m, dx, b - a))
+        let w = |t: f64| {
+            (
+                [(1.0 - t) * (1.0 - t) / 2.0, 0.5 + t - t * t, t * t / 2.0],
+                [t - 1.0, 1.0 - 2.0 * t, t],
+            )
+        };
+        let ((wx, dx), (wy, dy)) = (w(tx), w(ty));
+        let (mut m, mut gx, mut gy) = (0.0, 0.0, 0.0);
+        for (r, (wyr, dyr)) in wy.iter().zip(dy).enumerate() {
+            for (c, (wxc, dxc)) in wx.iter().zip(dx).enumerate() {
+                let v = self.dilated(i - 1 + c as i64, j - 1 + r as i64, n, i64::from(reach))?;
+                m += wxc * wyr * v;
+                gx += dxc * wyr * v;
+                gy += wxc * dyr * v;
+            }
+        }
+        Some((m, gx, gy))
     }
 }
 
@@ -189,7 +209,7 @@ pub fn match_scan_f64(
         let lever_k = lever.saturating_sub(u32::from(level));
         let scale = f64::from(1u32 << level); // cells per level cell
         let lev = f64::from(1u32 << lever_k);
-        let cost = MatchConfig::pass_reads(level, n);
+        let cost = cfg.pass_reads(level, n);
         for _ in 0..cfg.iterations {
             if reads + cost > budget {
                 break 'levels;
@@ -201,7 +221,7 @@ pub fn match_scan_f64(
             for p in points.iter().step_by(1 << level) {
                 let (px, py) = pts(p);
                 let (rx, ry) = (px * c - py * s, px * s + py * c);
-                let Some((m, jx, jy)) = field.sample(x0 + dx + rx, y0 + dy + ry, level) else {
+                let Some((m, jx, jy)) = field.sample(x0 + dx + rx, y0 + dy + ry, level, cfg.reach) else {
                     continue;
                 };
                 used += 1;
@@ -329,4 +349,63 @@ pub fn match_scan_f64(
         Verdict::Trusted
     };
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::localize::field::{Field, Ramp};
+    use crate::types::fixed::LogOdds;
+    use crate::types::geometry::GridGeometry;
+
+    /// The fixed-point spline sample against the f64 one at many positions and every level.
+    #[test]
+    fn samples_agree() {
+        let g = GridGeometry::new(40, 30, 50, 0, 0).unwrap();
+        let mut x = 12345u64;
+        let cells: Vec<LogOdds> = (0..g.len())
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                LogOdds(((x >> 40) % 6000) as i16 - 2000)
+            })
+            .collect();
+        let map = MapView::new(&cells, g).unwrap();
+        let cfg = MatchConfig::default();
+        let f = Field::new(&map, Ramp::new(cfg.floor, cfg.occupied));
+        let r = RefField {
+            cells: &cells,
+            w: 40,
+            h: 30,
+            floor: f64::from(cfg.floor.0),
+            span: f64::from(cfg.occupied.0 - cfg.floor.0),
+        };
+        for level in 0..=2u8 {
+            for i in 0..2000 {
+                let gx = (i * 37) % (40 * 256);
+                let gy = (i * 91) % (30 * 256);
+                let reach = (i % 4) as u8;
+                let a = f.sample(gx, gy, level, reach);
+                let b = r.sample(f64::from(gx) / 256.0, f64::from(gy) / 256.0, level, reach);
+                assert_eq!(a.is_some(), b.is_some(), "{gx} {gy} {level}");
+                if let (Some(a), Some((m, dx, dy))) = (a, b) {
+                    let one = 32768.0;
+                    assert!(
+                        (f64::from(a.m) / one - m).abs() < 1e-3 + 4e-3 * f64::from(level),
+                        "{a:?} {m} {dx} {dy} level {level}"
+                    );
+                    assert!(
+                        (f64::from(a.dx) / one - dx).abs() < 1e-3 + 4e-3 * f64::from(level),
+                        "{a:?} {m} {dx} {dy}"
+                    );
+                    let tol = 1e-3 + 4e-3 * f64::from(level);
+                    assert!(
+                        (f64::from(a.dy) / one - dy).abs() < tol,
+                        "{a:?} {m} {dx} {dy} level {level} at {gx} {gy}"
+                    );
+                }
+            }
+        }
+    }
 }

@@ -89,15 +89,15 @@ pub(crate) fn isqrt(v: u64) -> u64 {
 pub(crate) fn eigen2(a: i64, b: i64, c: i64) -> (i64, i64, Angle) {
     let s = bits(a).max(bits(b)).max(bits(c)).saturating_sub(30);
     let (a, b, c) = (a >> s, b >> s, c >> s);
-    let mid = (a + c) / 2;
-    let half = (a - c) / 2;
-    // |half|, |b| < 2^30: the sum of squares fits a u64.
-    let rad = isqrt(half.unsigned_abs().pow(2) + b.unsigned_abs().pow(2)) as i64;
+    // In doubled units (no halving before the root): |a − c|, |2b| < 2^31, so the sum of squares
+    // fits a u64.
+    let rad2 = isqrt((a - c).unsigned_abs().pow(2) + (2 * b).unsigned_abs().pow(2)) as i64;
+    let (lo, hi) = ((a + c - rad2) / 2, (a + c + rad2) / 2);
     // The larger eigenvalue's eigenvector is at ψ = ½·atan2(2b, a − c); the smaller one's is a
     // quarter turn on.
     let two_psi = Angle::atan2(2 * b, a - c);
     let weak = Angle((two_psi.0 >> 1).wrapping_add(Angle::QUARTER.0));
-    ((mid - rad) << s, (mid + rad) << s, weak)
+    (lo << s, hi << s, weak)
 }
 
 #[cfg(test)]
@@ -137,16 +137,20 @@ mod tests {
         // Strong along x, weak along y.
         let (lo, hi, weak) = eigen2(100, 0, 1);
         assert_eq!((lo, hi), (1, 100));
-        assert!(weak.signed_diff(Angle::QUARTER).abs() <= 2, "{weak:?}");
+        assert!(
+            weak.signed_diff(Angle::QUARTER).unsigned_abs() <= 2,
+            "{weak:?}"
+        );
         let (lo, hi, weak) = eigen2(1, 0, 100);
         assert_eq!((lo, hi), (1, 100));
         assert!(
-            weak.signed_diff(Angle::ZERO).abs() <= 2 || weak.signed_diff(Angle::HALF).abs() <= 2
+            weak.signed_diff(Angle::ZERO).unsigned_abs() <= 2
+                || weak.signed_diff(Angle::HALF).unsigned_abs() <= 2
         );
         // Strong along 45°: weak along 135°.
         let (lo, hi, weak) = eigen2(50, 49, 50);
         assert_eq!((lo, hi), (1, 99));
-        let d = weak.signed_diff(Angle::from_degrees(135.0)).abs();
-        assert!(d <= 4 || (d as i32 - 32768).abs() <= 4, "{weak:?}");
+        let d = weak.signed_diff(Angle::from_degrees(135.0)).unsigned_abs() as i32;
+        assert!(d <= 4 || (d - 32768).abs() <= 4, "{weak:?}");
     }
 }
