@@ -64,9 +64,18 @@ struct Args {
     /// Matcher: coarsest level.
     #[arg(long)]
     levels: Option<u8>,
-    /// Matcher: dilation reach, level cells.
+    /// Matcher: window radius, level cells.
     #[arg(long)]
-    reach: Option<u8>,
+    radius: Option<u8>,
+    /// Matcher: covariance regulariser, cells² (Q8).
+    #[arg(long)]
+    reg_q8: Option<u16>,
+    /// Matcher: Cauchy scale c², cells² (Q8).
+    #[arg(long)]
+    cauchy_q8: Option<u16>,
+    /// Matcher: prior on rotation, per point per rad².
+    #[arg(long)]
+    prior_rot: Option<u16>,
     /// Matcher: Gauss–Newton iterations per level.
     #[arg(long)]
     iterations: Option<u8>,
@@ -79,9 +88,9 @@ struct Args {
     /// Matcher: cell-read budget per scan (0 = none).
     #[arg(long)]
     budget: Option<u32>,
-    /// Matcher: prior weight (Q16).
+    /// Matcher: prior on translation, per point per cell² (Q8).
     #[arg(long)]
-    prior_q16: Option<u16>,
+    prior_trans_q8: Option<u16>,
     /// Matcher: minimum drop along the weakest direction, ‰.
     #[arg(long)]
     min_drop: Option<u16>,
@@ -194,7 +203,8 @@ fn proto_match(
                 let (rx, ry) = (c * px - s * py, s * px + c * py);
                 let (gx, gy) = (x0 + dx + rx, y0 + dy + ry); // cells
                 let (ci, cj) = ((gx / nf).floor() as i64, (gy / nf).floor() as i64);
-                let (mut s0, mut s1x, mut s1y, mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+                let (mut s0, mut s1x, mut s1y, mut sxx, mut sxy, mut syy) =
+                    (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
                 for j in cj - r..=cj + r {
                     for i in ci - r..=ci + r {
                         let v = pooled(i, j, n);
@@ -216,7 +226,11 @@ fn proto_match(
                 }
                 let (mx, my) = (s1x / s0, s1y / s0);
                 let reg = a.proto_reg * nf * nf + nf * nf / 12.0;
-                let (cxx, cxy, cyy) = (sxx / s0 - mx * mx + reg, sxy / s0 - mx * my, syy / s0 - my * my + reg);
+                let (cxx, cxy, cyy) = (
+                    sxx / s0 - mx * mx + reg,
+                    sxy / s0 - mx * my,
+                    syy / s0 - my * my + reg,
+                );
                 let det = cxx * cyy - cxy * cxy;
                 if det <= 0.0 {
                     continue;
@@ -242,7 +256,11 @@ fn proto_match(
                 break;
             }
             // Weak prior towards the prediction.
-            let lam = [used * a.proto_prior_t, used * a.proto_prior_t, used * a.proto_prior_r];
+            let lam = [
+                used * a.proto_prior_t,
+                used * a.proto_prior_t,
+                used * a.proto_prior_r,
+            ];
             let off = [dx, dy, dth];
             for i in 0..3 {
                 hm[i][i] += lam[i];
@@ -429,7 +447,12 @@ fn ate(truth: &[P], est: &[P]) -> (f64, f64) {
 }
 
 /// The bounding box of the truth poses and their hits within `range_mm`, plus `margin_mm`.
-fn geometry(scans: &[(Pose, Vec<Beam>)], cell_mm: u32, range_mm: u32, margin_mm: i64) -> anyhow::Result<GridGeometry> {
+fn geometry(
+    scans: &[(Pose, Vec<Beam>)],
+    cell_mm: u32,
+    range_mm: u32,
+    margin_mm: i64,
+) -> anyhow::Result<GridGeometry> {
     let (mut x0, mut y0, mut x1, mut y1) = (i64::MAX, i64::MAX, i64::MIN, i64::MIN);
     for (pose, beams) in scans {
         let mut add = |x: i64, y: i64| {
@@ -449,7 +472,10 @@ fn geometry(scans: &[(Pose, Vec<Beam>)], cell_mm: u32, range_mm: u32, margin_mm:
         }
     }
     let c = i64::from(cell_mm);
-    let (ox, oy) = ((x0 - margin_mm).div_euclid(c) * c, (y0 - margin_mm).div_euclid(c) * c);
+    let (ox, oy) = (
+        (x0 - margin_mm).div_euclid(c) * c,
+        (y0 - margin_mm).div_euclid(c) * c,
+    );
     let w = u16::try_from((x1 + margin_mm - ox) / c + 1)?;
     let h = u16::try_from((y1 + margin_mm - oy) / c + 1)?;
     GridGeometry::new(w, h, cell_mm, i32::try_from(ox)?, i32::try_from(oy)?)
@@ -488,8 +514,17 @@ fn matcher_config(a: &Args) -> MatchConfig {
     if let Some(v) = a.levels {
         c.levels = v;
     }
-    if let Some(v) = a.reach {
-        c.reach = v;
+    if let Some(v) = a.radius {
+        c.radius = v;
+    }
+    if let Some(v) = a.reg_q8 {
+        c.reg_q8 = v;
+    }
+    if let Some(v) = a.cauchy_q8 {
+        c.cauchy_q8 = v;
+    }
+    if let Some(v) = a.prior_rot {
+        c.prior_rot = v;
     }
     if let Some(v) = a.iterations {
         c.iterations = v;
@@ -503,8 +538,8 @@ fn matcher_config(a: &Args) -> MatchConfig {
     if let Some(v) = a.budget {
         c.budget_reads = v;
     }
-    if let Some(v) = a.prior_q16 {
-        c.prior_q16 = v;
+    if let Some(v) = a.prior_trans_q8 {
+        c.prior_trans_q8 = v;
     }
     if let Some(v) = a.min_drop {
         c.min_drop_permille = v;
@@ -535,25 +570,37 @@ fn run(a: &Args, name: &str, scans: &[(Pose, Vec<Beam>)], seed: u64) -> anyhow::
         bias: a.bias_deg_per_m.to_radians() / 1000.0,
     };
     let odo = drift.odometry(&truth, seed);
-    let grid = LogOddsGrid::new(g, vec![LogOdds::ZERO; g.len()]).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut mapper = Mapper::new(grid, vec![0u32; marks_len(g.len())], MapperConfig::new(range_mm))
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let grid =
+        LogOddsGrid::new(g, vec![LogOdds::ZERO; g.len()]).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut mapper = Mapper::new(
+        grid,
+        vec![0u32; marks_len(g.len())],
+        MapperConfig::new(range_mm),
+    )
+    .map_err(|e| anyhow::anyhow!("{e}"))?;
     let cfg = matcher_config(a);
     if a.oracle_map {
         for (p, beams) in scans {
-            mapper.insert_scan(p, beams).map_err(|e| anyhow::anyhow!("{e}"))?;
+            mapper
+                .insert_scan(p, beams)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
         }
     }
     let mut buf = vec![ScanPoint::default(); a.max_points];
     let mut est: Vec<P> = Vec::with_capacity(scans.len());
     let mut counts = Counts::default();
-    let (mut points, mut reads, mut passes, mut max_reads, mut matched_scans) = (0usize, 0u64, 0u64, 0u32, 0usize);
+    let (mut points, mut reads, mut passes, mut max_reads, mut matched_scans) =
+        (0usize, 0u64, 0u64, 0u32, 0usize);
     let mut match_time = 0.0f64;
     for (i, (_, beams)) in scans.iter().enumerate() {
         let pose = if i == 0 {
             odo[0]
         } else {
-            let prev = if a.oracle_map { truth[i - 1] } else { est[i - 1] };
+            let prev = if a.oracle_map {
+                truth[i - 1]
+            } else {
+                est[i - 1]
+            };
             let pred = prev.compose(&odo[i - 1].between(&odo[i]));
             if a.no_match {
                 pred

@@ -111,6 +111,16 @@ fn room_map() -> (GridGeometry, Vec<LogOdds>) {
     (g, cells)
 }
 
+/// The defaults with a prediction trusted little: the tests' offsets (5–10 cm, 2°) are far
+/// larger than the one-step odometry error the defaults' prior assumes.
+fn loose() -> MatchConfig {
+    MatchConfig {
+        prior_trans_q8: 4,
+        prior_rot: 1,
+        ..MatchConfig::default()
+    }
+}
+
 fn points(beams: &[Beam], g: &GridGeometry, cfg: &MatchConfig) -> Vec<ScanPoint> {
     let mut buf = vec![ScanPoint::default(); 512];
     let st = prepare_points(beams, g.cell_mm(), cfg, &mut buf);
@@ -128,7 +138,7 @@ fn err(pose: &Pose, truth: (f64, f64, f64)) -> (f64, f64) {
 fn recovers_a_known_offset_in_a_room() {
     let (g, cells) = room_map();
     let map = MapView::new(&cells, g).unwrap();
-    let cfg = MatchConfig::default();
+    let cfg = loose();
     let truth = (3300.0, 1900.0, 0.7);
     let pts = points(&scan(&room(), truth, 450, 10_000.0), &g, &cfg);
     for (ox, oy, oth) in [
@@ -142,7 +152,7 @@ fn recovers_a_known_offset_in_a_room() {
         let (d, a) = err(&r.pose, truth);
         assert_eq!(r.verdict, Verdict::Trusted, "{r:?}");
         assert!(
-            d < 15.0 && a < 0.3,
+            d < 5.0 && a < 0.1,
             "offset ({ox}, {oy}, {oth}°): error {d:.1} mm {a:.2}° {r:?}"
         );
         assert_eq!(r.accepted(), r.pose);
@@ -161,7 +171,7 @@ fn corridor_is_ambiguous_along_its_axis() {
     let map = MapView::new(&cells, g).unwrap();
     let cfg = MatchConfig {
         max_range_mm: 6000,
-        ..MatchConfig::default()
+        ..loose()
     };
     let truth = (15_000.0, 700.0, 0.2);
     let pts = points(&scan(&world, truth, 450, 6000.0), &g, &cfg);
@@ -198,7 +208,7 @@ fn single_wall_is_ambiguous() {
     let map = MapView::new(&cells, g).unwrap();
     let cfg = MatchConfig {
         max_range_mm: 5000,
-        ..MatchConfig::default()
+        ..loose()
     };
     let truth = (-1000.0, 1500.0, 0.3);
     let pts = points(&scan(&world, truth, 450, 5000.0), &g, &cfg);
@@ -252,18 +262,19 @@ fn nothing_to_match_is_not_trusted() {
 fn odometry_jump_is_not_trusted() {
     let (g, cells) = room_map();
     let map = MapView::new(&cells, g).unwrap();
-    let cfg = MatchConfig::default();
     let truth = (3300.0, 1900.0, 0.7);
-    let pts = points(&scan(&room(), truth, 450, 10_000.0), &g, &cfg);
-    for (ox, oy, oth) in [
-        (800.0, 0.0, 0.0),
-        (0.0, -700.0, 10.0f64),
-        (300.0, 300.0, 25.0),
-    ] {
-        let predicted = pose_of((truth.0 + ox, truth.1 + oy, truth.2 + oth.to_radians()));
-        let r = match_scan(&map, &pts, &predicted, &cfg);
-        assert!(!r.verdict.is_trusted(), "jump ({ox}, {oy}, {oth}°): {r:?}");
-        assert_eq!(r.accepted(), predicted);
+    for cfg in [MatchConfig::default(), loose()] {
+        let pts = points(&scan(&room(), truth, 450, 10_000.0), &g, &cfg);
+        for (ox, oy, oth) in [
+            (800.0, 0.0, 0.0),
+            (0.0, -700.0, 10.0f64),
+            (300.0, 300.0, 25.0),
+        ] {
+            let predicted = pose_of((truth.0 + ox, truth.1 + oy, truth.2 + oth.to_radians()));
+            let r = match_scan(&map, &pts, &predicted, &cfg);
+            assert!(!r.verdict.is_trusted(), "jump ({ox}, {oy}, {oth}°): {r:?}");
+            assert_eq!(r.accepted(), predicted);
+        }
     }
 }
 
@@ -275,7 +286,7 @@ fn fixed_point_agrees_with_f64_reference() {
         let cfg = MatchConfig {
             levels,
             budget_reads: budget,
-            ..MatchConfig::default()
+            ..loose()
         };
         for (k, truth) in [
             (1200.0, 1000.0, 0.1),
@@ -310,7 +321,8 @@ fn fixed_point_agrees_with_f64_reference() {
             let q = &fx.quality;
             let score = f64::from(q.score) / 32768.0;
             assert!(
-                (score - rf.quality.score).abs() < 0.5 + 1e-3 * rf.quality.score,
+                // A millimetre moves a point or two across a cell boundary.
+                (score - rf.quality.score).abs() < 0.5 + 0.02 * pts.len() as f64,
                 "{score} {:?}",
                 rf.quality
             );
@@ -398,7 +410,17 @@ fn any_config() -> impl Strategy<Value = MatchConfig> {
             prop_oneof![1u32..40_000, Just(u32::MAX)],
             0u32..200,
         ),
-        (any::<i16>(), any::<i16>(), 0u8..6, 0u8..8, any::<u16>()),
+        (
+            any::<i16>(),
+            any::<i16>(),
+            0u8..6,
+            0u8..8,
+            any::<u16>(),
+            0u8..5,
+            any::<u16>(),
+            any::<u16>(),
+            any::<u16>(),
+        ),
         (
             any::<u32>(),
             any::<u16>(),
@@ -407,22 +429,28 @@ fn any_config() -> impl Strategy<Value = MatchConfig> {
         (0u16..100, any::<u16>(), 0u32..200_000),
     )
         .prop_map(
-            |((lo, hi, sp), (f, o, lv, it, pr), (sh, tu, pb), (mp, ov, bu))| MatchConfig {
-                min_range_mm: lo,
-                max_range_mm: hi,
-                min_spacing_mm: sp,
-                floor: LogOdds(f),
-                occupied: LogOdds(o),
-                levels: lv,
-                iterations: it,
-                prior_q16: pr,
-                max_shift_mm: sh,
-                max_turn: Angle(tu),
-                probe_mm: pb,
-                min_points: mp,
-                min_overlap_permille: ov,
-                budget_reads: bu,
-                ..MatchConfig::default()
+            |((lo, hi, sp), (f, o, lv, it, pr, ra, rg, ca, prr), (sh, tu, pb), (mp, ov, bu))| {
+                MatchConfig {
+                    min_range_mm: lo,
+                    max_range_mm: hi,
+                    min_spacing_mm: sp,
+                    floor: LogOdds(f),
+                    occupied: LogOdds(o),
+                    levels: lv,
+                    iterations: it,
+                    prior_trans_q8: pr,
+                    prior_rot: prr,
+                    radius: ra,
+                    reg_q8: rg,
+                    cauchy_q8: ca,
+                    max_shift_mm: sh,
+                    max_turn: Angle(tu),
+                    probe_mm: pb,
+                    min_points: mp,
+                    min_overlap_permille: ov,
+                    budget_reads: bu,
+                    ..MatchConfig::default()
+                }
             },
         )
 }
@@ -474,25 +502,43 @@ proptest! {
 fn print_room_precision() {
     let (g, cells) = room_map();
     let map = MapView::new(&cells, g).unwrap();
-    for (levels, reach) in [(0u8, 0u8), (0, 1), (1, 1), (2, 1), (2, 0)] {
+    for (levels, radius) in [(0u8, 1u8), (0, 2), (1, 2), (2, 2), (1, 3)] {
         let cfg = MatchConfig {
             levels,
-            reach,
+            radius,
+            prior_trans_q8: 4,
+            prior_rot: 1,
             ..MatchConfig::default()
         };
         let mut worst = (0.0f64, 0.0f64);
-        for truth in [(1200.0, 1000.0, 0.1), (3300.0, 1900.0, 0.7), (5000.0, 3000.0, 2.5), (2000.0, 2500.0, -2.0)] {
+        for truth in [
+            (1200.0, 1000.0, 0.1),
+            (3300.0, 1900.0, 0.7),
+            (5000.0, 3000.0, 2.5),
+            (2000.0, 2500.0, -2.0),
+        ] {
             let pts = points(&scan(&room(), truth, 450, 10_000.0), &g, &cfg);
-            for (ox, oy, oth) in [(0.0, 0.0, 0.0f64), (30.0, -20.0, 0.5), (-60.0, 40.0, -1.0), (10.0, 10.0, 2.0)] {
+            for (ox, oy, oth) in [
+                (0.0, 0.0, 0.0f64),
+                (30.0, -20.0, 0.5),
+                (-60.0, 40.0, -1.0),
+                (10.0, 10.0, 2.0),
+            ] {
                 let predicted = pose_of((truth.0 + ox, truth.1 + oy, truth.2 + oth.to_radians()));
                 let r = match_scan(&map, &pts, &predicted, &cfg);
                 let (d, a) = err(&r.pose, truth);
-                if levels == 2 && reach == 1 {
-                    println!("  {truth:?} + ({ox}, {oy}, {oth}°): {d:.1} mm {a:.3}° passes {} {:?}", r.work.passes, r.verdict);
+                if levels == 1 && radius == 2 {
+                    println!(
+                        "  {truth:?} + ({ox}, {oy}, {oth}°): {d:.1} mm {a:.3}° passes {} {:?}",
+                        r.work.passes, r.verdict
+                    );
                 }
                 worst = (worst.0.max(d), worst.1.max(a));
             }
         }
-        println!("levels {levels} reach {reach}: worst {:.1} mm {:.3}°", worst.0, worst.1);
+        println!(
+            "levels {levels} radius {radius}: worst {:.1} mm {:.3}°",
+            worst.0, worst.1
+        );
     }
 }

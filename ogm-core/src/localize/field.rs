@@ -1,10 +1,10 @@
 //! The map as the matcher sees it: a read-only view of log-odds cells, the ramp that turns a
-//! cell's log-odds into a map value, and bilinear samples (with gradient) of the max-pooled
-//! pyramid levels, computed on the fly.
+//! cell's log-odds into a weight, and the occupied cells near a point as a normal distribution
+//! (NDT, Biber & Straßer 2003, but computed from the occupancy grid on the fly, per point, at any
+//! level of a max-pooled pyramid).
 //!
-//! Positions are in sub-cells ([`SUB`] per cell) from the grid's lower-left corner. A cell's
-//! value sits at its centre, so a sample at `u` interpolates between the centres around it:
-//! `u − ½` cell, floored, is the lower-left corner of the four.
+//! Positions are in sub-cells ([`crate::localize::SUB`] per cell) from the grid's lower-left
+//! corner; a cell's weight sits at its centre.
 
 use crate::error::{Error, Result};
 use crate::localize::MAX_LEVEL;
@@ -83,13 +83,49 @@ impl Ramp {
     }
 }
 
-/// A bilinear sample: value and gradient (per cell of the sample's level), Q15.
+/// The occupied cells near a point as a normal distribution: the offset from the point to their
+/// weighted centroid and the inverse of their covariance (times a robust weight).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub(crate) struct Sample {
-    pub(crate) m: i32,
-    pub(crate) dx: i32,
-    pub(crate) dy: i32,
+pub(crate) struct Near {
+    /// Point → centroid, Q8 level cells.
+    pub(crate) mx: i32,
+    /// Point → centroid, Q8 level cells.
+    pub(crate) my: i32,
+    /// Inverse covariance × robust weight, Q12 per level cell².
+    pub(crate) oxx: i32,
+    /// See `oxx`.
+    pub(crate) oxy: i32,
+    /// See `oxx`.
+    pub(crate) oyy: i32,
 }
+
+/// How [`Field::near`] builds a distribution.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct NearParams {
+    /// Window radius, level cells (1..=[`MAX_RADIUS`]).
+    pub(crate) radius: u8,
+    /// Added to the covariance's diagonal, Q12 level cells² (the cell's own extent plus a
+    /// regulariser: a straight wall's covariance is singular across it).
+    pub(crate) reg: i32,
+    /// Cauchy scale c² of the robust weight `c² / (c² + d²)`, Q12 level cells² (d² the point's
+    /// squared Mahalanobis distance).
+    pub(crate) cauchy: i32,
+}
+
+/// The largest window radius, level cells.
+pub const MAX_RADIUS: u8 = 3;
+
+/// Side of the largest window, level cells.
+const BLOCK: usize = 2 * MAX_RADIUS as usize + 1;
+
+/// The largest covariance regulariser, Q12 level cells² (16 cells²).
+pub(crate) const MAX_REG: i32 = 1 << 16;
+
+/// The largest Cauchy scale c², Q12 level cells² (63 cells²).
+pub(crate) const MAX_CAUCHY: i32 = (1 << 18) - 1;
+
+/// Less total weight than half an occupied cell (Q8) in a window: no distribution.
+const MIN_WEIGHT: i32 = 128;
 
 /// The grid's dimensions as `i32` and its cells: what the inner loops need.
 #[derive(Clone, Copy, Debug)]
@@ -122,53 +158,94 @@ impl<'a> Field<'a> {
         self.cells.get(idx).map_or(0, |l| self.ramp.value(l.0))
     }
 
-    /// Quadratic B-spline sample of level `level` at a sub-cell position of the grid: the value
-    /// and gradient of `Σ wᵢ(u) wⱼ(v) d(c+i, r+j)` over the 3 × 3 level cells around the one that
-    /// contains the position, where `d` is the map value dilated by `reach` level cells (see
-    /// [`dilate`]). `None` if the cells it needs are not all inside the grid. Reads
-    /// `(3 + 2·reach)² · 4^level` cells.
+    /// The occupied cells of the `(2·radius + 1)²` window of level cells centred on the level
+    /// cell that contains the position (a level cell is the maximum of its `2^level × 2^level`
+    /// grid cells) as a distribution, see [`Near`]: weights are the ramped log-odds, the
+    /// covariance gets `p.reg` on its diagonal, and the inverse is scaled by the Cauchy weight of
+    /// the point's Mahalanobis distance. `None` if the window is not inside the grid or weighs
+    /// less than half an occupied cell. Reads `(2·radius + 1)² · 4^level` cells.
     ///
-    /// Why a B-spline and not bilinear interpolation (Hector's): with bilinear interpolation a
-    /// wall two cells thick is a flat plateau between their centres (a pose anywhere on it is as
-    /// good) and a point more than one cell away feels no pull. The quadratic B-spline is C¹,
-    /// peaks midway on a two-cell wall, and pulls from 1.5 cells away.
-    #[inline]
-    pub(crate) fn sample(&self, gx: i32, gy: i32, level: u8, reach: u8) -> Option<Sample> {
+    /// Why a distribution and not the interpolated map value (Hector): with a value that peaks on
+    /// a wall, the Jacobian vanishes at the optimum and Gauss–Newton overshoots; with one that
+    /// saturates, the optimum is a plateau. The distance to the wall's local centroid, measured
+    /// with its covariance, is zero at the optimum and keeps its slope there (point-to-line ICP
+    /// against the map's own cells), and the centroid of a slanted wall's staircase of cells
+    /// lies on the wall, not on a cell centre.
+    pub(crate) fn near(&self, gx: i32, gy: i32, level: u8, p: &NearParams) -> Option<Near> {
         let k = u32::from(level.min(MAX_LEVEL));
-        let r = i32::from(reach.min(MAX_REACH));
+        let r = i32::from(p.radius.clamp(1, MAX_RADIUS));
+        // The position in Q8 level cells and the level cell containing it.
         let (u, v) = (gx >> k, gy >> k);
-        // The level cell containing the position and the offset within it, Q8.
         let (i, j) = (u >> 8, v >> 8);
-        let (tx, ty) = (u & 0xFF, v & 0xFF);
-        let n = 1i32 << k; // grid cells per level cell
-        let side = 3 + 2 * r; // level cells per side of the block read
+        let n = 1i32 << k;
+        let side = 2 * r + 1;
         let (x0, y0) = (
-            i.checked_sub(1 + r)?.checked_mul(n)?,
-            j.checked_sub(1 + r)?.checked_mul(n)?,
+            i.checked_sub(r)?.checked_mul(n)?,
+            j.checked_sub(r)?.checked_mul(n)?,
         );
         if x0 < 0 || y0 < 0 || x0 > self.w - side * n || y0 > self.h - side * n {
             return None;
         }
         let mut block = [[0i32; BLOCK]; BLOCK];
         self.read_block(x0, y0, n as usize, side as usize, &mut block)?;
-        let m = dilate(&block, r as usize);
-        let (wx, dx) = spline_weights(tx);
-        let (wy, dy) = spline_weights(ty);
-        // Rows: value (Q15 · Q15 weights → Q30 → Q15) and x-derivative (Q15 · Q8 → Q23 → Q15).
-        let mut rv = [0i32; 3];
-        let mut rd = [0i32; 3];
-        for ((row, v), d) in m.iter().zip(rv.iter_mut()).zip(rd.iter_mut()) {
-            let [a, b, c] = *row;
-            *v = (a * wx[0] + b * wx[1] + c * wx[2]) >> 15;
-            *d = (a * dx[0] + b * dx[1] + c * dx[2]) >> 8;
+        // Moments about the point. Offsets of cell centres, Q8 level cells: |e| ≤ (r + 1)·256
+        // ≤ 2^10; weights Q8 ≤ 2^8: first moments < 2^24, second < 2^34 (i64).
+        let ex0 = ((i - r) << 8) + 128 - u;
+        let ey0 = ((j - r) << 8) + 128 - v;
+        let (mut s0, mut s1x, mut s1y) = (0i32, 0i32, 0i32);
+        let (mut sxx, mut sxy, mut syy) = (0i64, 0i64, 0i64);
+        let mut ey = ey0;
+        for row in block.iter().take(side as usize) {
+            let mut ex = ex0;
+            for val in row.iter().take(side as usize) {
+                let w = val >> 7;
+                if w > 0 {
+                    s0 += w;
+                    s1x += w * ex;
+                    s1y += w * ey;
+                    sxx += i64::from(w * ex) * i64::from(ex);
+                    sxy += i64::from(w * ex) * i64::from(ey);
+                    syy += i64::from(w * ey) * i64::from(ey);
+                }
+                ex += 256;
+            }
+            ey += 256;
         }
-        let mv = (rv[0] * wy[0] + rv[1] * wy[1] + rv[2] * wy[2]) >> 15;
-        let mx = (rd[0] * wy[0] + rd[1] * wy[1] + rd[2] * wy[2]) >> 15;
-        let my = (rv[0] * dy[0] + rv[1] * dy[1] + rv[2] * dy[2]) >> 8;
-        Some(Sample {
-            m: mv,
-            dx: mx,
-            dy: my,
+        if s0 < MIN_WEIGHT {
+            return None;
+        }
+        // Centroid, Q8; covariance, Q12 (second moments are Q16: >> 4 fits an i32).
+        let (mx, my) = (s1x / s0, s1y / s0);
+        // Second moments < 2^34 (Q16): >> 4 fits an i32, so the divisions are 32-bit.
+        let q12 = |s: i64| (s >> 4).clamp(-i64::from(i32::MAX), i64::from(i32::MAX)) as i32 / s0;
+        let reg = p.reg.clamp(1, MAX_REG);
+        let cxx = q12(sxx) - ((mx * mx) >> 4) + reg;
+        let cyy = q12(syy) - ((my * my) >> 4) + reg;
+        let cxy = q12(sxy) - ((mx * my) >> 4);
+        // cxx, cyy ≤ ~2^16 + reg: the determinant (Q24) fits an i64; Q12 fits an i32.
+        let det = ((i64::from(cxx) * i64::from(cyy) - i64::from(cxy) * i64::from(cxy)) >> 12)
+            .clamp(0, i64::from(i32::MAX)) as i32;
+        if det <= 0 || cxx <= 0 || cyy <= 0 {
+            return None;
+        }
+        // |c| < 2^18, so c · 2^12 fits an i32.
+        let inv = |c: i32| (c << 12) / det;
+        let (oxx, oxy, oyy) = (inv(cyy), inv(-cxy), inv(cxx));
+        // Squared Mahalanobis distance, Q12: μ Q8 · Ω Q12 · μ Q8 = Q28.
+        let (mx64, my64) = (i64::from(mx), i64::from(my));
+        let d2 = (mx64 * (i64::from(oxx) * mx64 + i64::from(oxy) * my64)
+            + my64 * (i64::from(oxy) * mx64 + i64::from(oyy) * my64))
+            >> 16;
+        // c² < 2^18: c² · 2^12 fits an i32; Q12, at most 4096.
+        let c2 = p.cauchy.clamp(1, MAX_CAUCHY);
+        let wq = (c2 << 12) / c2.saturating_add(d2.clamp(0, i64::from(i32::MAX)) as i32);
+        let scale = |o: i32| ((i64::from(o) * i64::from(wq)) >> 12) as i32;
+        Some(Near {
+            mx,
+            my,
+            oxx: scale(oxx),
+            oxy: scale(oxy),
+            oyy: scale(oyy),
         })
     }
 
@@ -210,70 +287,4 @@ impl<'a> Field<'a> {
         }
         Some(())
     }
-}
-
-/// The largest dilation reach, level cells.
-pub const MAX_REACH: u8 = 3;
-
-/// Side of the largest block a sample reads, level cells.
-const BLOCK: usize = 3 + 2 * MAX_REACH as usize;
-
-/// The 3 × 3 values at the centre of `block` (side `3 + 2·reach`), each the maximum over the
-/// cells within `reach` (L1 distance `d`) of `value − d · ONE / (reach + 1)`, at least 0:
-/// a dilation whose value falls off linearly with distance, separable (rows, then columns).
-///
-/// Why: the robot's own map of a wall seen from a metre or two away is a dotted line (one beam
-/// a degree apart hits every few cells at range), and a point of the next scan often falls
-/// between the dots. Dilating bridges the gaps and widens the basin without shifting the wall
-/// (block-aligned pooling shifts it by up to half a block).
-fn dilate(block: &[[i32; BLOCK]; BLOCK], reach: usize) -> [[i32; 3]; 3] {
-    let mut out = [[0i32; 3]; 3];
-    if reach == 0 {
-        for (o, b) in out.iter_mut().zip(block) {
-            for (x, y) in o.iter_mut().zip(b) {
-                *x = *y;
-            }
-        }
-        return out;
-    }
-    let step = ONE / (reach as i32 + 1);
-    let side = 3 + 2 * reach;
-    // Along rows: h[r][c] for the three centre columns.
-    let mut h = [[0i32; 3]; BLOCK];
-    for (hr, br) in h.iter_mut().zip(block).take(side) {
-        for (c, hc) in hr.iter_mut().enumerate() {
-            let mut best = 0;
-            for (d, v) in br.iter().skip(c).take(2 * reach + 1).enumerate() {
-                let dist = (d as i32 - reach as i32).abs();
-                best = best.max(v - dist * step);
-            }
-            *hc = best;
-        }
-    }
-    // Along columns.
-    for (r, orow) in out.iter_mut().enumerate() {
-        for (c, o) in orow.iter_mut().enumerate() {
-            let mut best = 0;
-            for (d, hr) in h.iter().skip(r).take(2 * reach + 1).enumerate() {
-                let dist = (d as i32 - reach as i32).abs();
-                if let Some(v) = hr.get(c) {
-                    best = best.max(v - dist * step);
-                }
-            }
-            *o = best;
-        }
-    }
-    out
-}
-
-/// Quadratic B-spline weights (Q15, summing to 2^15) and their derivatives per cell (Q8) for the
-/// cells left of, at and right of the one containing the position, whose offset from that cell's
-/// lower edge is `t` (Q8, 0..256): `w = ((1−t)²/2, ½ + t − t², t²/2)`, `w' = (t − 1, 1 − 2t, t)`.
-#[inline(always)]
-fn spline_weights(t: i32) -> ([i32; 3], [i32; 3]) {
-    let s = 256 - t;
-    // s² is (1−t)² in Q16; (1−t)²/2 in Q15 is s²/4.
-    let a = (s * s) >> 2;
-    let c = (t * t) >> 2;
-    ([a, (1 << 15) - a - c, c], [-s, s - t, t])
 }

@@ -5,7 +5,7 @@
 //! 1/256 angle unit. Working on the correction keeps the numbers small whatever the pose (the
 //! window bounds it), and the prior and the window are then tests on the state itself.
 
-use crate::localize::field::{Field, MapView, Ramp, ONE};
+use crate::localize::field::{Field, MapView, NearParams, Ramp, ONE};
 use crate::localize::points::ScanPoint;
 use crate::localize::solve::{eigen2, solve3};
 use crate::localize::{MatchConfig, MAX_LEVEL, MAX_POINTS, SUB};
@@ -29,9 +29,10 @@ const TWO_PI_Q16: i64 = 411_775;
 /// Levers (the rotation's scale `2^s` cells) are kept in `0..=MAX_LEVER`.
 const MAX_LEVER: u32 = 14;
 
-/// Jacobian entries are clamped to this magnitude (rotation terms of absurdly far points):
-/// with at most [`MAX_POINTS`] points every sum of products stays below 2⁶⁰.
-const J_LIM: i64 = 1 << 23;
+/// Rotation Jacobians (Q8 level cells at the lever) are clamped to this magnitude (points
+/// absurdly far for their lever): with inverse covariances below 2^14 (Q12) and at most
+/// [`MAX_POINTS`] points, every sum of the normal equations stays below 2⁶⁰.
+const J_LIM: i64 = 1 << 15;
 
 /// Whether a match can be trusted, and if not, why.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -174,9 +175,10 @@ impl Frame<'_> {
         )
     }
 
-    /// One pass at `level` over every `2^level`-th point: the normal equations (Jacobians per
-    /// cell of the level, rotation as `φ = θ · 2^lever_k` level cells).
-    fn pass(&self, s: &State, level: u8, reach: u8, lever_k: u32) -> Normal {
+    /// One pass at `level` over every `2^level`-th point: the normal equations in Q28 (the
+    /// translation's Jacobian is the identity, 256 in Q8; the rotation's is the point's lever
+    /// `(−ry, rx) / 2^lever_k` in Q8 level cells, for `φ = θ · 2^lever_k` level cells).
+    fn pass(&self, s: &State, level: u8, lever_k: u32, np: &NearParams) -> Normal {
         let (tx, ty, c, sn) = self.transform(s);
         let k = u32::from(level);
         let mut n = Normal::default();
@@ -187,24 +189,26 @@ impl Frame<'_> {
             // |p| < 2^24 and |c|, |s| ≤ 2^30: the rotated point is below 2^25 in magnitude.
             let rx = ((px * c - py * sn) >> 30) as i32;
             let ry = ((px * sn + py * c) >> 30) as i32;
-            let Some(sm) = self.field.sample(tx + rx, ty + ry, level, reach) else {
+            let Some(nd) = self.field.near(tx + rx, ty + ry, level, np) else {
                 continue;
             };
             n.used += 1;
-            let r = i64::from(ONE - sm.m);
-            let (jx, jy) = (i64::from(sm.dx), i64::from(sm.dy));
-            // dM/dθ = ∇M · (−ry, rx), the point in level cells; /2^lever_k for φ.
-            let jt = (-i64::from(ry >> k) * jx + i64::from(rx >> k) * jy) >> (8 + lever_k);
-            let jt = jt.clamp(-J_LIM, J_LIM);
-            h00 += jx * jx;
-            h01 += jx * jy;
-            h02 += jx * jt;
-            h11 += jy * jy;
-            h12 += jy * jt;
-            h22 += jt * jt;
-            b0 += jx * r;
-            b1 += jy * r;
-            b2 += jt * r;
+            let jx = i64::from((-(ry >> k)) >> lever_k).clamp(-J_LIM, J_LIM);
+            let jy = i64::from((rx >> k) >> lever_k).clamp(-J_LIM, J_LIM);
+            let (oxx, oxy, oyy) = (i64::from(nd.oxx), i64::from(nd.oxy), i64::from(nd.oyy));
+            let (mx, my) = (i64::from(nd.mx), i64::from(nd.my));
+            // Ω·j and Ω·μ, Q20.
+            let (ojx, ojy) = (oxx * jx + oxy * jy, oxy * jx + oyy * jy);
+            let (omx, omy) = (oxx * mx + oxy * my, oxy * mx + oyy * my);
+            h00 += oxx << 16;
+            h01 += oxy << 16;
+            h11 += oyy << 16;
+            h02 += ojx << 8;
+            h12 += ojy << 8;
+            h22 += jx * ojx + jy * ojy;
+            b0 += omx << 8;
+            b1 += omy << 8;
+            b2 += jx * omx + jy * omy;
         }
         n.h = [[h00, h01, h02], [h01, h11, h12], [h02, h12, h22]];
         n.b = [b0, b1, b2];
@@ -222,10 +226,15 @@ fn dth_of_phi(phi_q8: i64, lever_k: u32) -> i64 {
     (phi_q8 * Q8_UNITS_PER_RAD_Q16) >> (16 + lever_k)
 }
 
-/// The prior's weight at a level: `prior_q16 / 2^16` of an ideal edge point's information
-/// (`ONE²` per level cell²) per point used.
-fn prior_weight(cfg: &MatchConfig, used: u32) -> i64 {
-    (i64::from(cfg.prior_q16) * i64::from(used)) << 14
+/// The prior's information at a level, Q28 per level cell² (translation) and per level cell² of
+/// `φ` (rotation), for `used` points: the config's per-point figures scaled to the level.
+fn prior_weights(cfg: &MatchConfig, used: u32, level: u8, lever_k: u32) -> (i64, i64) {
+    let used = i64::from(used);
+    // Per fine cell² (Q8) → per level cell² (×4^k) → Q28.
+    let t = (used * i64::from(cfg.prior_trans_q8)) << (20 + 2 * u32::from(level.min(MAX_LEVEL)));
+    // Per rad² → per (φ level cell)² = per rad² / 4^lever_k → Q28.
+    let r = ((used * i64::from(cfg.prior_rot)) << 28) >> (2 * lever_k.min(MAX_LEVER));
+    (t, r)
 }
 
 /// `log2` of the points' mean Chebyshev distance in cells (at least 0): the rotation's lever.
@@ -292,6 +301,11 @@ pub fn match_scan(
     let win_th = i32::from(cfg.max_turn.0.min(32767)) << 8;
 
     // Gauss–Newton, coarse to fine.
+    let np = NearParams {
+        radius: cfg.radius,
+        reg: (i32::from(cfg.reg_q8) << 4) + 4096 / 12,
+        cauchy: i32::from(cfg.cauchy_q8) << 4,
+    };
     let mut s = State::default();
     let mut at_edge = false;
     let mut reads = 0u64;
@@ -310,7 +324,7 @@ pub fn match_scan(
             reads += cost;
             out.work.passes = out.work.passes.saturating_add(1);
             out.work.finest_level = level;
-            let ne = frame.pass(&s, level, cfg.reach, lever_k);
+            let ne = frame.pass(&s, level, lever_k, &np);
             out.quality.inside = ne.used.min(u32::from(u16::MAX)) as u16;
             if ne.used == 0 {
                 break;
@@ -365,7 +379,8 @@ pub fn match_scan(
 /// One regularised Gauss–Newton step in Q8 level cells (x, y, φ), each at most one level cell.
 fn gn_step(ne: &Normal, s: &State, level: u8, lever_k: u32, cfg: &MatchConfig) -> Option<[i64; 3]> {
     let k = u32::from(level);
-    let lam = prior_weight(cfg, ne.used);
+    let (lt, lr) = prior_weights(cfg, ne.used, level, lever_k);
+    let lams = [lt, lt, lr];
     let off = [
         i64::from(s.dx >> k),
         i64::from(s.dy >> k),
@@ -373,14 +388,17 @@ fn gn_step(ne: &Normal, s: &State, level: u8, lever_k: u32, cfg: &MatchConfig) -
     ];
     let mut h = ne.h;
     let mut b = ne.b;
-    for i in 0..3 {
-        if let (Some(row), Some(bi), Some(o)) = (h.get_mut(i), b.get_mut(i), off.get(i)) {
-            if let Some(d) = row.get_mut(i) {
-                *d = d.saturating_add(lam);
-            }
-            // The prior pulls the correction back towards zero: −λ · offset (offset in Q8).
-            *bi = bi.saturating_sub((lam >> 8).saturating_mul(*o));
+    for (i, ((row, bi), (o, lam))) in h
+        .iter_mut()
+        .zip(b.iter_mut())
+        .zip(off.iter().zip(lams))
+        .enumerate()
+    {
+        if let Some(d) = row.get_mut(i) {
+            *d = d.saturating_add(lam);
         }
+        // The prior pulls the correction back towards zero: −λ · offset (offset in Q8).
+        *bi = bi.saturating_sub((lam >> 8).saturating_mul(*o));
     }
     let step = solve3(&h, &b)?;
     Some(step.map(|v| v.clamp(-i64::from(SUB), i64::from(SUB))))

@@ -10,42 +10,44 @@
 //! corridor or a single wall that leaves one direction unconstrained) the caller keeps mapping on
 //! odometry ([`MatchResult::accepted`]).
 //!
-//! ## How (Hector SLAM's Gauss–Newton on a coarse-to-fine pyramid, made integer)
-//! * **Map function.** A cell's log-odds `l` becomes a map value `M ∈ [0, 1]` (Q15) by a ramp:
-//!   0 at or below [`MatchConfig::floor`] (free and unknown cells: a point there is evidence of
-//!   nothing), 1 at or above [`MatchConfig::occupied`]. `M` between cell centres is bilinear, so
-//!   it has a gradient (Kohlbrecher et al. 2011, "A flexible and scalable SLAM system with full 3D
-//!   motion estimation").
-//! * **Pyramid without memory.** A level-`k` cell is a `2^k × 2^k` block of grid cells whose value
-//!   is the block's *maximum* (max-pooling keeps one-cell-thin walls, as Cartographer's
-//!   precomputation grids do). It is computed on the fly from the grid — no pooled copy is stored
-//!   (a 256 × 256 map has no RAM to spare for one) — so a level-`k` sample reads `4^(k+1)` cells;
-//!   coarse levels therefore use every `2^k`-th point only.
-//! * **Gauss–Newton.** From the coarsest level to the grid, up to [`MatchConfig::iterations`]
-//!   steps per level minimise `Σ (1 − M(T(ξ)·pᵢ))²` over the pose `ξ = (x, y, θ)`. Each step
-//!   accumulates `H = Σ JᵀJ`, `g = Σ Jᵀ(1 − M)` in `i64`, adds a weak prior that pulls towards the
-//!   odometry prediction ([`MatchConfig::prior_q16`]: in a corridor the unconstrained direction
-//!   stays where odometry put it instead of drifting on noise), and solves the 3 × 3 system by
-//!   Cramer's rule after scaling it into 19 bits. The rotation is solved as `φ = θ·2^s` cells
-//!   (`2^s` ≈ the points' mean distance) so that the three unknowns have comparable scale. A step
-//!   moves at most one cell of its level; the pose stays inside the search window
-//!   ([`MatchConfig::max_shift_mm`], [`MatchConfig::max_turn`]).
+//! ## How: NDT from the occupancy grid, Gauss–Newton, coarse to fine
+//! * **Weights.** A cell's log-odds `l` becomes a weight in `[0, 1]` (Q15) by a ramp: 0 at or
+//!   below [`MatchConfig::floor`] (free and unknown cells say nothing about where a wall is), 1 at
+//!   or above [`MatchConfig::occupied`].
+//! * **The map near a point as a normal distribution** (NDT, Biber & Straßer 2003, computed per
+//!   point from the grid rather than stored per cell): the weighted centroid and covariance of
+//!   the cells within [`MatchConfig::radius`] cells of the point. The point's residual is its
+//!   offset to the centroid, measured with the inverse covariance — across a wall that is the
+//!   point-to-line distance, along it almost nothing — and a Cauchy weight
+//!   ([`MatchConfig::cauchy_q8`]) damps points far from anything that looks like their wall.
+//!   Unlike the interpolated map value of Hector SLAM (Kohlbrecher et al. 2011), whose slope
+//!   vanishes on a wall's ridge or plateau, this residual is zero at the optimum with a
+//!   non-vanishing Jacobian, so Gauss–Newton converges there (NOTES-39.md has the measurements).
+//! * **Pyramid without memory.** A level-`k` cell is a `2^k × 2^k` block of grid cells whose
+//!   weight is the block's maximum (max-pooling keeps one-cell-thin walls, as Cartographer's
+//!   precomputation grids do), computed on the fly — a 256 × 256 map has no RAM to spare for a
+//!   pooled copy — so coarse levels use every `2^k`-th point only.
+//! * **Gauss–Newton with the prediction as a prior.** From [`MatchConfig::levels`] down to the
+//!   grid, up to [`MatchConfig::iterations`] steps per level solve `(H + Λ) δ = b − Λ ξ` with
+//!   `H = Σ JᵀΩJ`, `b = Σ JᵀΩμ` in `i64`. `Λ` weighs the odometry prediction
+//!   ([`MatchConfig::prior_trans_q8`], [`MatchConfig::prior_rot`]): wheel odometry measures a
+//!   step's translation well and its heading badly, so the match corrects mostly the heading and
+//!   what the heading error did; in a corridor the open direction stays where odometry put it.
+//!   The 3 × 3 system is solved by Cramer's rule after scaling into 19 bits; the rotation is
+//!   solved as `φ = θ·2^s` cells (`2^s` ≈ the points' mean distance) so that the three unknowns
+//!   have comparable scale. A step moves at most one cell of its level; the pose stays inside the
+//!   search window ([`MatchConfig::max_shift_mm`], [`MatchConfig::max_turn`]).
 //! * **Quality (Olson 2009, "Real-time correlative scan matching", in miniature).** At the final
-//!   pose the score `S = Σ M` (nearest cell) is compared with the score of the same points moved
-//!   by [`MatchConfig::probe_mm`] in four directions (±) and turned by the angle that moves a point
-//!   at the mean distance as far. How much score each displacement loses fits a quadratic form
-//!   whose smaller eigenvalue is the *weakest* translation constraint and whose eigenvector is the
-//!   direction a corridor leaves open; the turn's loss is the rotation constraint. Small losses
-//!   mean the map cannot tell: [`Verdict::Ambiguous`], [`Verdict::AmbiguousRotation`].
-//!
-//! Why Gauss–Newton and not a correlative search first: on the shared logs odometry errs by a
-//! centimetre or two and a fraction of a degree between scans, well inside the basin of a two-level
-//! pyramid, and a window search costs its candidates × points × reads. See `NOTES-39.md` for the
-//! measurements the choice rests on.
+//!   pose the score `S = Σ weight` (nearest cell) is compared with the score of the same points
+//!   moved by [`MatchConfig::probe_mm`] in four directions (±) and turned by the angle that moves
+//!   a point at the mean distance as far. How much score each displacement loses fits a quadratic
+//!   form whose smaller eigenvalue is the *weakest* translation constraint and whose eigenvector
+//!   is the direction a corridor leaves open; the turn's loss is the rotation constraint. Small
+//!   losses mean the map cannot tell: [`Verdict::Ambiguous`], [`Verdict::AmbiguousRotation`].
 //!
 //! ## Work bound
 //! The unit of work is a cell read. A Gauss–Newton pass at level `k` over `n` points reads at most
-//! `4^(k+1) · ⌈n / 2^k⌉` cells ([`MatchConfig::pass_reads`]); the quality probes read `11 n`
+//! `(2r + 1)² · 4^k · ⌈n / 2^k⌉` cells for a window radius `r` ([`MatchConfig::pass_reads`]); the quality probes read `11 n`
 //! ([`MatchConfig::probe_reads`]). [`MatchConfig::budget_reads`] caps the passes: one that does
 //! not fit in what is left is not started (the match then ends at the level it reached), so a
 //! call reads at most `budget_reads + 11 n` cells; [`MatchConfig::max_reads`] gives the bound for
@@ -54,7 +56,8 @@
 //!
 //! ## Fixed point
 //! Positions are in 1/256 cell ([`SUB`]) relative to the grid's origin, headings in 1/256 of an
-//! [`crate::Angle`] unit (2²⁴ per turn), map values Q15, Jacobians Q15 per cell, sums `i64`. Every
+//! [`crate::Angle`] unit (2²⁴ per turn), weights Q15, inverse covariances Q12 per cell², the
+//! normal equations `i64` (Q28). Every
 //! value derived from input is clamped or saturated (points beyond [`MAX_POINT_SUB`], poses far
 //! outside the grid: no overlap), so no input panics or overflows. [`reference`] (feature
 //! `reference`) is the same algorithm in `f64`, which the tests compare against.
@@ -102,21 +105,27 @@ pub struct MatchConfig {
     /// A hit closer than this to the last point kept (in the order of the beams) is skipped:
     /// near the robot the beams crowd, and evenly spread points weigh every wall alike.
     pub min_spacing_mm: u32,
-    /// Log-odds at or below which a cell's map value is 0 (free and unknown cells).
+    /// Log-odds at or below which a cell weighs 0 (free and unknown cells).
     pub floor: LogOdds,
-    /// Log-odds at or above which a cell's map value is 1; must exceed `floor`.
+    /// Log-odds at or above which a cell weighs 1; must exceed `floor`.
     pub occupied: LogOdds,
     /// Coarsest pyramid level (0..=[`MAX_LEVEL`]); the match starts there.
     pub levels: u8,
-    /// Dilation of the map value, cells of each level (0..=[`field::MAX_REACH`]): a wall's value
-    /// falls off linearly over this many cells (see `field::dilate`).
-    pub reach: u8,
+    /// Radius of the window of cells a point's distribution is taken from, cells of each level
+    /// (1..=[`field::MAX_RADIUS`]); the reach of the match at a level.
+    pub radius: u8,
     /// Gauss–Newton steps per level at most (a level ends early once a step is below 1/16 cell).
     pub iterations: u8,
-    /// Weight of the pull towards the prediction, per point, as a fraction (Q16) of the
-    /// information one point on an ideal edge gives. Small: it only decides directions the map
-    /// leaves open.
-    pub prior_q16: u16,
+    /// Added to each window's covariance, cells² of its level, Q8 (plus a cell's own extent,
+    /// 1/12): bounds the inverse covariance across a straight wall.
+    pub reg_q8: u16,
+    /// Cauchy scale c² (cells² of the level, Q8): a point at Mahalanobis distance d weighs
+    /// `c² / (c² + d²)`.
+    pub cauchy_q8: u16,
+    /// Information of the prediction's translation, per point matched, per cell² (Q8).
+    pub prior_trans_q8: u16,
+    /// Information of the prediction's heading, per point matched, per rad².
+    pub prior_rot: u16,
     /// The correction may move the pose this far from the prediction (per axis).
     pub max_shift_mm: u32,
     /// The correction may turn the pose this far from the prediction.
@@ -147,10 +156,13 @@ impl Default for MatchConfig {
             min_spacing_mm: 30,
             floor: LogOdds(0),
             occupied: LogOdds(2048),
-            levels: 2,
-            reach: 1,
-            iterations: 4,
-            prior_q16: 1024,
+            levels: 1,
+            radius: 2,
+            iterations: 6,
+            reg_q8: 128,
+            cauchy_q8: 1024,
+            prior_trans_q8: 256,
+            prior_rot: 100,
             max_shift_mm: 300,
             max_turn: Angle(1092), // 6°
             probe_mm: 100,
@@ -164,11 +176,13 @@ impl Default for MatchConfig {
 }
 
 impl MatchConfig {
-    /// Checks the settings: `floor < occupied`, `levels ≤ MAX_LEVEL`, a non-empty range.
+    /// Checks the settings: `floor < occupied`, `levels ≤ MAX_LEVEL`, `1 ≤ radius ≤ MAX_RADIUS`,
+    /// a non-empty range.
     pub fn validate(&self) -> Result<()> {
         if self.floor.0 >= self.occupied.0
             || self.levels > MAX_LEVEL
-            || self.reach > field::MAX_REACH
+            || self.radius == 0
+            || self.radius > field::MAX_RADIUS
             || self.min_range_mm >= self.max_range_mm
         {
             return Err(Error::InvalidModel);
@@ -180,7 +194,7 @@ impl MatchConfig {
     pub fn pass_reads(&self, level: u8, n: usize) -> u64 {
         let level = u32::from(level.min(MAX_LEVEL));
         let stride = 1usize << level;
-        let side = 3 + 2 * u64::from(self.reach.min(field::MAX_REACH));
+        let side = 1 + 2 * u64::from(self.radius.clamp(1, field::MAX_RADIUS));
         ((side * side) << (2 * level)) * n.div_ceil(stride) as u64
     }
 

@@ -95,44 +95,49 @@ impl RefField<'_> {
         Some(m)
     }
 
-    /// The dilated value of level cell (i, j): max over L1 distance d ≤ reach of value − d/(reach+1).
-    fn dilated(&self, i: i64, j: i64, n: i64, reach: i64) -> Option<f64> {
-        let mut best = 0.0f64;
-        for dy in -reach..=reach {
-            for dx in -reach..=reach {
-                let d = (dx.abs() + dy.abs()) as f64;
-                let v = self.value(self.pooled(i + dx, j + dy, n)?);
-                best = best.max(v - d / (reach + 1) as f64);
-            }
-        }
-        Some(best)
-    }
-
-    /// Quadratic B-spline value and gradient (per level cell) at (x, y) cells.
-    fn sample(&self, x: f64, y: f64, level: u8, reach: u8) -> Option<(f64, f64, f64)> {
+    /// The window's distribution at (x, y) grid cells: point → centroid (level cells) and the
+    /// Cauchy-weighted inverse covariance (per level cell²), as `field::Field::near`.
+    fn near(&self, x: f64, y: f64, level: u8, p: &RefNear) -> Option<[f64; 5]> {
         let n = 1i64 << level;
         let (u, v) = (x / n as f64, y / n as f64);
-        let (i, j) = (libm::floor(u), libm::floor(v));
-        let (tx, ty) = (u - i, v - j);
-        let (i, j) = (i as i64, j as i64);
-        let w = |t: f64| {
-            (
-                [(1.0 - t) * (1.0 - t) / 2.0, 0.5 + t - t * t, t * t / 2.0],
-                [t - 1.0, 1.0 - 2.0 * t, t],
-            )
-        };
-        let ((wx, dx), (wy, dy)) = (w(tx), w(ty));
-        let (mut m, mut gx, mut gy) = (0.0, 0.0, 0.0);
-        for (r, (wyr, dyr)) in wy.iter().zip(dy).enumerate() {
-            for (c, (wxc, dxc)) in wx.iter().zip(dx).enumerate() {
-                let v = self.dilated(i - 1 + c as i64, j - 1 + r as i64, n, i64::from(reach))?;
-                m += wxc * wyr * v;
-                gx += dxc * wyr * v;
-                gy += wxc * dyr * v;
+        let (i, j) = (libm::floor(u) as i64, libm::floor(v) as i64);
+        let r = i64::from(p.radius);
+        let (mut s0, mut s1x, mut s1y, mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        for cj in j - r..=j + r {
+            for ci in i - r..=i + r {
+                let w = self.value(self.pooled(ci, cj, n)?);
+                let (ex, ey) = (ci as f64 + 0.5 - u, cj as f64 + 0.5 - v);
+                s0 += w;
+                s1x += w * ex;
+                s1y += w * ey;
+                sxx += w * ex * ex;
+                sxy += w * ex * ey;
+                syy += w * ey * ey;
             }
         }
-        Some((m, gx, gy))
+        if s0 < 0.5 {
+            return None;
+        }
+        let (mx, my) = (s1x / s0, s1y / s0);
+        let cxx = sxx / s0 - mx * mx + p.reg;
+        let cyy = syy / s0 - my * my + p.reg;
+        let cxy = sxy / s0 - mx * my;
+        let det = cxx * cyy - cxy * cxy;
+        if det.partial_cmp(&0.0) != Some(core::cmp::Ordering::Greater) {
+            return None;
+        }
+        let (oxx, oxy, oyy) = (cyy / det, -cxy / det, cxx / det);
+        let d2 = mx * (oxx * mx + oxy * my) + my * (oxy * mx + oyy * my);
+        let w = p.cauchy / (p.cauchy + d2);
+        Some([mx, my, w * oxx, w * oxy, w * oyy])
     }
+}
+
+/// [`RefField::near`]'s settings.
+struct RefNear {
+    radius: u8,
+    reg: f64,
+    cauchy: f64,
 }
 
 fn solve3(h: &[[f64; 3]; 3], b: &[f64; 3]) -> Option<[f64; 3]> {
@@ -205,6 +210,11 @@ pub fn match_scan_f64(
     } else {
         u64::from(cfg.budget_reads)
     };
+    let np = RefNear {
+        radius: cfg.radius.clamp(1, crate::localize::field::MAX_RADIUS),
+        reg: f64::from(cfg.reg_q8) / 256.0 + 1.0 / 12.0,
+        cauchy: f64::from(cfg.cauchy_q8) / 256.0,
+    };
     'levels: for level in (0..=cfg.levels.min(MAX_LEVEL)).rev() {
         let lever_k = lever.saturating_sub(u32::from(level));
         let scale = f64::from(1u32 << level); // cells per level cell
@@ -221,29 +231,48 @@ pub fn match_scan_f64(
             for p in points.iter().step_by(1 << level) {
                 let (px, py) = pts(p);
                 let (rx, ry) = (px * c - py * s, px * s + py * c);
-                let Some((m, jx, jy)) = field.sample(x0 + dx + rx, y0 + dy + ry, level, cfg.reach) else {
+                let Some([mx, my, oxx, oxy, oyy]) =
+                    field.near(x0 + dx + rx, y0 + dy + ry, level, &np)
+                else {
                     continue;
                 };
                 used += 1;
-                let jt = (-ry / scale * jx + rx / scale * jy) / lev;
-                let j = [jx, jy, jt];
-                for ((row, bi), ja) in h.iter_mut().zip(b.iter_mut()).zip(j) {
-                    for (hab, jb) in row.iter_mut().zip(j) {
-                        *hab += ja * jb;
+                // Rotation column of the Jacobian, level cells at the lever.
+                let (jx, jy) = (-ry / scale / lev, rx / scale / lev);
+                // H += JᵀΩJ, b += JᵀΩμ with J = [[1, 0, jx], [0, 1, jy]].
+                let (ojx, ojy) = (oxx * jx + oxy * jy, oxy * jx + oyy * jy);
+                let (omx, omy) = (oxx * mx + oxy * my, oxy * mx + oyy * my);
+                let add = [
+                    [oxx, oxy, ojx],
+                    [oxy, oyy, ojy],
+                    [ojx, ojy, jx * ojx + jy * ojy],
+                ];
+                for (hr, ar) in h.iter_mut().zip(add) {
+                    for (hv, av) in hr.iter_mut().zip(ar) {
+                        *hv += av;
                     }
-                    *bi += ja * (1.0 - m);
+                }
+                for (bv, av) in b.iter_mut().zip([omx, omy, jx * omx + jy * omy]) {
+                    *bv += av;
                 }
             }
             if used == 0 {
                 break;
             }
-            let lam = f64::from(cfg.prior_q16) / 65536.0 * f64::from(used);
+            let lt = f64::from(used) * f64::from(cfg.prior_trans_q8) / 256.0 * scale * scale;
+            let lr = f64::from(used) * f64::from(cfg.prior_rot) / (lev * lev);
+            let lam = [lt, lt, lr];
             let off = [dx / scale, dy / scale, dth * lev];
-            for (i, ((row, bi), o)) in h.iter_mut().zip(b.iter_mut()).zip(off).enumerate() {
-                if let Some(d) = row.get_mut(i) {
-                    *d += lam;
+            for (i, ((hr, bv), (l, o))) in h
+                .iter_mut()
+                .zip(b.iter_mut())
+                .zip(lam.iter().zip(off))
+                .enumerate()
+            {
+                if let Some(d) = hr.get_mut(i) {
+                    *d += l;
                 }
-                *bi -= lam * o;
+                *bv -= l * o;
             }
             let Some(step) = solve3(&h, &b) else {
                 break;
@@ -354,58 +383,77 @@ pub fn match_scan_f64(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::localize::field::{Field, Ramp};
+    use crate::localize::field::{Field, NearParams, Ramp};
     use crate::types::fixed::LogOdds;
     use crate::types::geometry::GridGeometry;
 
-    /// The fixed-point spline sample against the f64 one at many positions and every level.
+    /// The fixed-point window distribution against the f64 one at many positions and levels.
     #[test]
-    fn samples_agree() {
-        let g = GridGeometry::new(40, 30, 50, 0, 0).unwrap();
-        let mut x = 12345u64;
+    fn near_agrees() {
+        let g = GridGeometry::new(60, 50, 50, 0, 0).unwrap();
+        // Walls: a slanted line and a box, with noise-free log-odds.
         let cells: Vec<LogOdds> = (0..g.len())
-            .map(|_| {
-                x ^= x << 13;
-                x ^= x >> 7;
-                x ^= x << 17;
-                LogOdds(((x >> 40) % 6000) as i16 - 2000)
+            .map(|i| {
+                let (x, y) = ((i % 60) as i32, (i / 60) as i32);
+                let on_line = (2 * x - 3 * y + 10).abs() <= 2;
+                let on_box = (x == 40 || x == 50) && (10..30).contains(&y);
+                LogOdds(if on_line || on_box { 3000 } else { -2000 })
             })
             .collect();
         let map = MapView::new(&cells, g).unwrap();
         let cfg = MatchConfig::default();
         let f = Field::new(&map, Ramp::new(cfg.floor, cfg.occupied));
-        let r = RefField {
-            cells: &cells,
-            w: 40,
-            h: 30,
-            floor: f64::from(cfg.floor.0),
-            span: f64::from(cfg.occupied.0 - cfg.floor.0),
-        };
-        for level in 0..=2u8 {
-            for i in 0..2000 {
-                let gx = (i * 37) % (40 * 256);
-                let gy = (i * 91) % (30 * 256);
-                let reach = (i % 4) as u8;
-                let a = f.sample(gx, gy, level, reach);
-                let b = r.sample(f64::from(gx) / 256.0, f64::from(gy) / 256.0, level, reach);
-                assert_eq!(a.is_some(), b.is_some(), "{gx} {gy} {level}");
-                if let (Some(a), Some((m, dx, dy))) = (a, b) {
-                    let one = 32768.0;
-                    assert!(
-                        (f64::from(a.m) / one - m).abs() < 1e-3 + 4e-3 * f64::from(level),
-                        "{a:?} {m} {dx} {dy} level {level}"
-                    );
-                    assert!(
-                        (f64::from(a.dx) / one - dx).abs() < 1e-3 + 4e-3 * f64::from(level),
-                        "{a:?} {m} {dx} {dy}"
-                    );
-                    let tol = 1e-3 + 4e-3 * f64::from(level);
-                    assert!(
-                        (f64::from(a.dy) / one - dy).abs() < tol,
-                        "{a:?} {m} {dx} {dy} level {level} at {gx} {gy}"
-                    );
+        let (mut n, mut worst) = (0, [0.0f64; 5]);
+        for level in 0..=1u8 {
+            for radius in 1..=3u8 {
+                let np = NearParams {
+                    radius,
+                    reg: (i32::from(cfg.reg_q8) << 4) + 4096 / 12,
+                    cauchy: i32::from(cfg.cauchy_q8) << 4,
+                };
+                let rn = RefNear {
+                    radius,
+                    reg: f64::from(cfg.reg_q8) / 256.0 + 1.0 / 12.0,
+                    cauchy: f64::from(cfg.cauchy_q8) / 256.0,
+                };
+                let r = RefField {
+                    cells: &cells,
+                    w: 60,
+                    h: 50,
+                    floor: f64::from(cfg.floor.0),
+                    span: f64::from(cfg.occupied.0 - cfg.floor.0),
+                };
+                for i in 0..3000 {
+                    let gx = (i * 37) % (60 * 256);
+                    let gy = (i * 91) % (50 * 256);
+                    let a = f.near(gx, gy, level, &np);
+                    let b = r.near(f64::from(gx) / 256.0, f64::from(gy) / 256.0, level, &rn);
+                    assert_eq!(a.is_some(), b.is_some(), "{gx} {gy} {level} {radius}");
+                    if let (Some(a), Some(b)) = (a, b) {
+                        n += 1;
+                        let got = [
+                            f64::from(a.mx) / 256.0,
+                            f64::from(a.my) / 256.0,
+                            f64::from(a.oxx) / 4096.0,
+                            f64::from(a.oxy) / 4096.0,
+                            f64::from(a.oyy) / 4096.0,
+                        ];
+                        for (w, (g, e)) in worst.iter_mut().zip(got.iter().zip(b)) {
+                            *w = w.max((g - e).abs());
+                        }
+                    }
                 }
             }
         }
+        assert!(n > 1000, "{n} distributions compared");
+        // Centroid to 1/128 cell, inverse covariance to 1 %  of its scale (≤ 1/reg ≈ 1.7).
+        assert!(
+            worst[0] < 1.0 / 128.0 && worst[1] < 1.0 / 128.0,
+            "{worst:?}"
+        );
+        assert!(
+            worst[2] < 0.02 && worst[3] < 0.02 && worst[4] < 0.02,
+            "{worst:?}"
+        );
     }
 }
