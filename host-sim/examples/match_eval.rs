@@ -9,8 +9,8 @@
 //!   truth's. Seeded (splitmix64 + Box–Muller): the same seed gives the same odometry.
 //! * **Matched**: the robot maps online. Scan 0 is inserted at the first pose; each next scan is
 //!   predicted from the last corrected pose plus the odometry step, matched against the map built
-//!   so far (`match_scan`), and inserted at the accepted pose (the match's if trusted, else the
-//!   prediction; with `--use-ambiguous` also the regularised pose of an ambiguous match).
+//!   so far (`match_scan`), and inserted at the accepted pose (`MatchResult::accepted`: the
+//!   match's if trusted or ambiguous, else the prediction; `--strict`: trusted only).
 //! * **Relative pose error** (Kümmerle et al. 2009): for Δ = 1, 10, 100 scans, the mean over all
 //!   pairs (i, i+Δ) of the translation (m) and rotation (°) of `rel_truth⁻¹ ∘ rel_estimate`.
 //!
@@ -58,9 +58,9 @@ struct Args {
     /// Do not match: map on odometry alone.
     #[arg(long)]
     no_match: bool,
-    /// Also accept the (regularised) pose of an ambiguous match.
+    /// Use trusted matches only (not the regularised pose of an ambiguous one).
     #[arg(long)]
-    use_ambiguous: bool,
+    strict: bool,
     /// Matcher: coarsest level.
     #[arg(long)]
     levels: Option<u8>,
@@ -97,6 +97,9 @@ struct Args {
     /// Matcher: minimum overlap, ‰.
     #[arg(long)]
     min_overlap: Option<u16>,
+    /// Matcher: most points deep in free space, ‰.
+    #[arg(long)]
+    max_contradicted: Option<u16>,
     /// Matcher: search window, mm.
     #[arg(long)]
     max_shift_mm: Option<u32>,
@@ -490,6 +493,7 @@ struct Counts {
     too_few_points: usize,
     no_overlap: usize,
     out_of_window: usize,
+    contradicted: usize,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -552,6 +556,9 @@ fn matcher_config(a: &Args) -> MatchConfig {
     }
     if let Some(v) = a.floor {
         c.floor = LogOdds(v);
+    }
+    if let Some(v) = a.max_contradicted {
+        c.max_contradicted_permille = v;
     }
     if let Some(v) = a.max_shift_mm {
         c.max_shift_mm = v;
@@ -623,9 +630,13 @@ fn run(a: &Args, name: &str, scans: &[(Pose, Vec<Beam>)], seed: u64) -> anyhow::
                     Verdict::TooFewPoints => counts.too_few_points += 1,
                     Verdict::NoOverlap => counts.no_overlap += 1,
                     Verdict::OutOfWindow => counts.out_of_window += 1,
+                    Verdict::Contradicted => counts.contradicted += 1,
                 }
-                let take = r.verdict.is_trusted()
-                    || (a.use_ambiguous && matches!(r.verdict, Verdict::Ambiguous { .. }));
+                let take = if a.strict {
+                    r.verdict.is_trusted()
+                } else {
+                    r.verdict.is_usable()
+                };
                 let mut r = r;
                 if a.proto {
                     let q = proto_match(mapper.grid().cells(), &g, beams, pred, &cfg, a);
@@ -827,7 +838,7 @@ fn main() -> anyhow::Result<()> {
     println!("matcher: {:?}", matcher_config(&a));
     let mut runs = Vec::new();
     println!(
-        "| log | seed | odom RPE1 m/° | match RPE1 | odom RPE10 | match RPE10 | odom RPE100 | match RPE100 | ratio t10/t100 | ratio r10/r100 | odom ATE mean/max m | match ATE | trusted/amb/rot/few/none/win | reads mean/max | ms |"
+        "| log | seed | odom RPE1 m/° | match RPE1 | odom RPE10 | match RPE10 | odom RPE100 | match RPE100 | ratio t10/t100 | ratio r10/r100 | odom ATE mean/max m | match ATE | trusted/amb/rot/few/none/win/contra | reads mean/max | ms |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for f in &files {
@@ -847,7 +858,7 @@ fn main() -> anyhow::Result<()> {
             let c = &r.verdicts;
             let cell = |v: &Rpe| format!("{:.3}/{:.2}", v.trans_m, v.rot_deg);
             println!(
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2}/{:.2} | {:.2}/{:.2} | {:.2}/{:.2} | {:.2}/{:.2} | {}/{}/{}/{}/{}/{} | {:.0}/{} | {:.2} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2}/{:.2} | {:.2}/{:.2} | {:.2}/{:.2} | {:.2}/{:.2} | {}/{}/{}/{}/{}/{}/{} | {:.0}/{} | {:.2} |",
                 r.log,
                 r.seed,
                 cell(&r.odometry[0]),
@@ -870,6 +881,7 @@ fn main() -> anyhow::Result<()> {
                 c.too_few_points,
                 c.no_overlap,
                 c.out_of_window,
+                c.contradicted,
                 r.mean_reads,
                 r.max_reads,
                 r.match_ms_per_scan,

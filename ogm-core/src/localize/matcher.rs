@@ -56,12 +56,25 @@ pub enum Verdict {
     /// The correction reached the edge of the search window: odometry jumped, or the match ran
     /// away.
     OutOfWindow,
+    /// Too many points lie where the map has seen through (free space behind the hit): the pose
+    /// is wrong (odometry jumped beyond the match's reach) or the world changed.
+    Contradicted,
 }
 
 impl Verdict {
-    /// Whether the corrected pose may be used.
+    /// Whether the map constrained every direction and the rotation.
     pub fn is_trusted(&self) -> bool {
         matches!(self, Verdict::Trusted)
+    }
+
+    /// Whether the corrected pose should be used: trusted, or ambiguous — then the prior has kept
+    /// the open direction (or the rotation) where odometry put it, and the rest is corrected.
+    /// Not when the matcher cannot tell at all (too few points, no overlap, out of window).
+    pub fn is_usable(&self) -> bool {
+        matches!(
+            self,
+            Verdict::Trusted | Verdict::Ambiguous { .. } | Verdict::AmbiguousRotation
+        )
     }
 }
 
@@ -84,8 +97,12 @@ pub struct Quality {
     pub weak_axis: Angle,
     /// Share of the score (‰) lost by turning the points by the probe angle.
     pub drop_turn: u16,
-    /// Points inside the grid in the last Gauss–Newton pass.
-    pub inside: u16,
+    /// Share (‰) of the points of the last Gauss–Newton pass that had occupied cells within the
+    /// window: how much of the scan the map explains.
+    pub overlap: u16,
+    /// Share (‰) of the points the map has seen through (their cell and the cells behind them
+    /// along the beam observed free): how much of the scan the map contradicts.
+    pub contradicted: u16,
 }
 
 /// Work a call did.
@@ -117,9 +134,13 @@ pub struct MatchResult {
 }
 
 impl MatchResult {
-    /// The pose to map with: the corrected one if trusted, else the prediction.
+    /// The pose to map with: the corrected one if [`Verdict::is_usable`], else the prediction.
+    ///
+    /// Why ambiguous matches are used: measured on the shared logs, falling back to odometry
+    /// for them (~20 % of the scans) costs more than it saves — the prior already holds the open
+    /// direction at the prediction (NOTES-39.md).
     pub fn accepted(&self) -> Pose {
-        if self.verdict.is_trusted() {
+        if self.verdict.is_usable() {
             self.pose
         } else {
             self.predicted
@@ -325,7 +346,8 @@ pub fn match_scan(
             out.work.passes = out.work.passes.saturating_add(1);
             out.work.finest_level = level;
             let ne = frame.pass(&s, level, lever_k, &np);
-            out.quality.inside = ne.used.min(u32::from(u16::MAX)) as u16;
+            let evaluated = n.div_ceil(1 << level).max(1) as u64;
+            out.quality.overlap = (u64::from(ne.used) * 1000 / evaluated).min(1000) as u16;
             if ne.used == 0 {
                 break;
             }
@@ -365,8 +387,8 @@ pub fn match_scan(
     // Quality probes and verdict.
     let probe = to_sub(i64::from(cfg.probe_mm)).clamp(1, MAX_WINDOW_SUB) as i32;
     out.quality = Quality {
-        inside: out.quality.inside,
-        ..probe_quality(&frame, &s, probe)
+        overlap: out.quality.overlap,
+        ..probe_quality(&frame, &s, probe, cfg.free.0)
     };
     out.work.reads = out
         .work
@@ -405,7 +427,7 @@ fn gn_step(ne: &Normal, s: &State, level: u8, lever_k: u32, cfg: &MatchConfig) -
 }
 
 /// The score of the points at the state, moved by each probe (four directions ±, two turns).
-fn probe_quality(frame: &Frame<'_>, s: &State, d: i32) -> Quality {
+fn probe_quality(frame: &Frame<'_>, s: &State, d: i32, free: i16) -> Quality {
     let (tx, ty, c, sn) = frame.transform(s);
     // Diagonal component of the probe: d/√2, rounded.
     let e = ((i64::from(d) * 46_341 + (1 << 15)) >> 16) as i32;
@@ -420,15 +442,19 @@ fn probe_quality(frame: &Frame<'_>, s: &State, d: i32) -> Quality {
         (e, -e),
     ];
     let mut moved = [0i64; 8];
-    let (mut score, mut matched) = (0i64, 0u32);
+    let (mut score, mut matched, mut contradicted) = (0i64, 0u32, 0u32);
     let f = &frame.field;
     for p in frame.points {
         let (px, py) = (i64::from(p.x), i64::from(p.y));
-        let gx = tx + ((px * c - py * sn) >> 30) as i32;
-        let gy = ty + ((px * sn + py * c) >> 30) as i32;
+        let (rx, ry) = (
+            ((px * c - py * sn) >> 30) as i32,
+            ((px * sn + py * c) >> 30) as i32,
+        );
+        let (gx, gy) = (tx + rx, ty + ry);
         let m = f.nearest(gx, gy);
         score += i64::from(m);
         matched += u32::from(m >= ONE / 2);
+        contradicted += u32::from(f.see_through(gx, gy, rx, ry, free));
         for (acc, (ox, oy)) in moved.iter_mut().zip(offs) {
             *acc += i64::from(f.nearest(gx + ox, gy + oy));
         }
@@ -472,17 +498,19 @@ fn probe_quality(frame: &Frame<'_>, s: &State, d: i32) -> Quality {
         drop_strong: permille(strong),
         weak_axis: axis,
         drop_turn: permille(lt),
-        inside: 0,
+        overlap: 0,
+        contradicted: (u64::from(contradicted) * 1000 / frame.points.len().max(1) as u64) as u16,
     }
 }
 
 /// The verdict from the quality measures (in the order the module docs give).
 fn verdict(q: &Quality, at_edge: bool, cfg: &MatchConfig) -> Verdict {
-    let n = u32::from(q.points);
-    if u32::from(q.matched) * 1000 < u32::from(cfg.min_overlap_permille) * n || q.matched == 0 {
+    if q.overlap < cfg.min_overlap_permille || q.matched == 0 {
         Verdict::NoOverlap
     } else if at_edge {
         Verdict::OutOfWindow
+    } else if q.contradicted > cfg.max_contradicted_permille {
+        Verdict::Contradicted
     } else if q.drop_turn < cfg.min_turn_drop_permille {
         Verdict::AmbiguousRotation
     } else if q.drop_weak < cfg.min_drop_permille {

@@ -5,10 +5,11 @@
 //! [`match_scan`] takes a read-only map ([`MapView`]: the `LogOdds` cells and their
 //! [`crate::GridGeometry`]), a scan already turned into points ([`prepare_points`], robot frame,
 //! caller memory) and the pose odometry predicts, and returns a [`MatchResult`]: the corrected
-//! pose, a [`Quality`] and a [`Verdict`] that says whether the correction can be trusted. When it
-//! cannot (too few points, no overlap with the map, a correction outside the search window, a
-//! corridor or a single wall that leaves one direction unconstrained) the caller keeps mapping on
-//! odometry ([`MatchResult::accepted`]).
+//! pose, a [`Quality`] and a [`Verdict`] that says whether the correction can be trusted. When the
+//! matcher cannot tell (too few points, no overlap with the map, a correction outside the search
+//! window) the caller keeps mapping on odometry; when the map leaves one direction open (a
+//! corridor, a single wall) or the rotation, the weak prior on the prediction has kept that part
+//! where odometry put it and the rest is corrected ([`MatchResult::accepted`]).
 //!
 //! ## How: NDT from the occupancy grid, Gauss–Newton, coarse to fine
 //! * **Weights.** A cell's log-odds `l` becomes a weight in `[0, 1]` (Q15) by a ramp: 0 at or
@@ -47,10 +48,10 @@
 //!
 //! ## Work bound
 //! The unit of work is a cell read. A Gauss–Newton pass at level `k` over `n` points reads at most
-//! `(2r + 1)² · 4^k · ⌈n / 2^k⌉` cells for a window radius `r` ([`MatchConfig::pass_reads`]); the quality probes read `11 n`
+//! `(2r + 1)² · 4^k · ⌈n / 2^k⌉` cells for a window radius `r` ([`MatchConfig::pass_reads`]); the quality probes read `14 n`
 //! ([`MatchConfig::probe_reads`]). [`MatchConfig::budget_reads`] caps the passes: one that does
 //! not fit in what is left is not started (the match then ends at the level it reached), so a
-//! call reads at most `budget_reads + 11 n` cells; [`MatchConfig::max_reads`] gives the bound for
+//! call reads at most `budget_reads + 14 n` cells; [`MatchConfig::max_reads`] gives the bound for
 //! `n` points and [`Work::reads`] what a call used. Per read the M4 spends a few instructions,
 //! per point and pass a few tens (`NOTES-39.md` has the measured instructions per scan).
 //!
@@ -134,9 +135,14 @@ pub struct MatchConfig {
     pub probe_mm: u32,
     /// Fewer points than this: [`Verdict::TooFewPoints`].
     pub min_points: u16,
-    /// At the final pose at least this share (‰) of the points must lie on occupied cells
-    /// (map value ≥ ½), else [`Verdict::NoOverlap`].
+    /// In the last Gauss–Newton pass at least this share (‰) of the points must have occupied
+    /// cells within the window ([`Quality::overlap`]), else [`Verdict::NoOverlap`].
     pub min_overlap_permille: u16,
+    /// Log-odds at or below which a cell counts as observed free, for [`Quality::contradicted`].
+    pub free: LogOdds,
+    /// At most this share (‰) of the points may lie where the map has seen through, else
+    /// [`Verdict::Contradicted`].
+    pub max_contradicted_permille: u16,
     /// Moving the points by `probe_mm` along the weakest direction must lose at least this share
     /// (‰) of the score, else [`Verdict::Ambiguous`].
     pub min_drop_permille: u16,
@@ -156,7 +162,7 @@ impl Default for MatchConfig {
             min_spacing_mm: 30,
             floor: LogOdds(0),
             occupied: LogOdds(2048),
-            levels: 1,
+            levels: 2,
             radius: 2,
             iterations: 6,
             reg_q8: 128,
@@ -168,6 +174,8 @@ impl Default for MatchConfig {
             probe_mm: 100,
             min_points: 30,
             min_overlap_permille: 300,
+            free: LogOdds(-2048),
+            max_contradicted_permille: 700,
             min_drop_permille: 150,
             min_turn_drop_permille: 150,
             budget_reads: 0,
@@ -199,9 +207,9 @@ impl MatchConfig {
     }
 
     /// Cell reads of the quality probes over `n` points (the score at the pose, four
-    /// directions ±, two turns).
+    /// directions ±, two turns, and three cells along each beam for [`Quality::contradicted`]).
     pub fn probe_reads(n: usize) -> u64 {
-        11 * n as u64
+        14 * n as u64
     }
 
     /// The most cells a call over `n` points reads: every level's iterations in full, or the

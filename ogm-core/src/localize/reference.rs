@@ -43,6 +43,10 @@ pub struct RefQuality {
     pub weak_axis_rad: f64,
     /// Share lost by the turn probe.
     pub drop_turn: f64,
+    /// Share of the last pass's points that had a distribution.
+    pub overlap: f64,
+    /// Share of the points deep in observed free space.
+    pub contradicted: f64,
 }
 
 /// A beam's hit as a point in cells of `cell_mm` (robot frame), with the same range test as
@@ -77,6 +81,20 @@ impl RefField<'_> {
             return None;
         }
         self.cells.get((y * self.w + x) as usize).map(|l| l.0)
+    }
+
+    /// The cell of (x, y) and those two and four cells farther along the beam direction
+    /// (rx, ry) (cells, along its dominant axis) all inside and at or below `free`.
+    fn see_through(&self, x: f64, y: f64, rx: f64, ry: f64, free: i16) -> bool {
+        let m = libm::fabs(rx).max(libm::fabs(ry)).max(1.0 / 256.0);
+        let (sx, sy) = (2.0 * rx / m, 2.0 * ry / m);
+        [0.0, 1.0, 2.0].iter().all(|k| {
+            let (cx, cy) = (
+                libm::floor(x + k * sx) as i64,
+                libm::floor(y + k * sy) as i64,
+            );
+            self.raw(cx, cy).is_some_and(|l| l <= free)
+        })
     }
 
     fn nearest(&self, x: f64, y: f64) -> f64 {
@@ -204,6 +222,7 @@ pub fn match_scan_f64(
 
     let (mut dx, mut dy, mut dth) = (0.0f64, 0.0f64, 0.0f64);
     let mut at_edge = false;
+    let mut overlap = 0.0f64;
     let mut reads = 0u64;
     let budget = if cfg.budget_reads == 0 {
         u64::MAX
@@ -256,6 +275,7 @@ pub fn match_scan_f64(
                     *bv += av;
                 }
             }
+            overlap = f64::from(used) / n.div_ceil(1 << level).max(1) as f64;
             if used == 0 {
                 break;
             }
@@ -319,10 +339,15 @@ pub fn match_scan_f64(
             (x0 + dx + px * c - py * s, y0 + dy + px * s + py * c)
         }
     };
+    let (s_fin, c_fin) = (libm::sin(th0 + dth), libm::cos(th0 + dth));
     let at = place(th0 + dth);
     let (mut score, mut matched, mut moved) = (0.0f64, 0u32, [0.0f64; 8]);
+    let mut contradicted = 0u32;
     for p in points {
         let (x, y) = at(p);
+        let (px, py) = pts(p);
+        let (rx, ry) = (px * c_fin - py * s_fin, px * s_fin + py * c_fin);
+        contradicted += u32::from(field.see_through(x, y, rx, ry, cfg.free.0));
         let m = field.nearest(x, y);
         score += m;
         matched += u32::from(m >= 0.5);
@@ -359,15 +384,17 @@ pub fn match_scan_f64(
         drop_strong: share(mid + rad),
         weak_axis_rad: 0.5 * libm::atan2(2.0 * bb, a - c) + core::f64::consts::FRAC_PI_2,
         drop_turn: share(score - turned / 2.0),
+        overlap,
+        contradicted: f64::from(contradicted) / n.max(1) as f64,
     };
     let q = &out.quality;
     let permille = |v: f64| (v * 1000.0) as u16;
-    out.verdict = if u64::from(q.matched) * 1000 < u64::from(cfg.min_overlap_permille) * n as u64
-        || q.matched == 0
-    {
+    out.verdict = if permille(q.overlap) < cfg.min_overlap_permille || q.matched == 0 {
         Verdict::NoOverlap
     } else if at_edge {
         Verdict::OutOfWindow
+    } else if permille(q.contradicted) > cfg.max_contradicted_permille {
+        Verdict::Contradicted
     } else if permille(q.drop_turn) < cfg.min_turn_drop_permille {
         Verdict::AmbiguousRotation
     } else if permille(q.drop_weak) < cfg.min_drop_permille {
