@@ -67,6 +67,12 @@ struct Args {
     /// Matcher: window radius, level cells.
     #[arg(long)]
     radius: Option<u8>,
+    /// Matcher: window radius at coarse levels.
+    #[arg(long)]
+    coarse_radius: Option<u8>,
+    /// Matcher: extra point stride shift at coarse levels.
+    #[arg(long)]
+    coarse_thin: Option<u8>,
     /// Matcher: covariance regulariser, cells² (Q8).
     #[arg(long)]
     reg_q8: Option<u16>,
@@ -520,6 +526,12 @@ fn matcher_config(a: &Args) -> MatchConfig {
     }
     if let Some(v) = a.radius {
         c.radius = v;
+    }
+    if let Some(v) = a.coarse_radius {
+        c.coarse_radius = v;
+    }
+    if let Some(v) = a.coarse_thin {
+        c.coarse_thin = v;
     }
     if let Some(v) = a.reg_q8 {
         c.reg_q8 = v;

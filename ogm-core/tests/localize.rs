@@ -332,7 +332,8 @@ fn fixed_point_agrees_with_f64_reference() {
                 "levels {levels}: {d:.2} mm {a:.3}°\n{fx:?}\n{rf:?}"
             );
             assert_eq!(fx.verdict, rf.verdict, "{fx:?}\n{rf:?}");
-            assert_eq!(fx.work.passes, rf.passes);
+            // A rounding can end a level one step earlier or later.
+            assert!(fx.work.passes.abs_diff(rf.passes) <= 1, "{fx:?}\n{rf:?}");
             let q = &fx.quality;
             let score = f64::from(q.score) / 32768.0;
             assert!(
@@ -456,6 +457,8 @@ fn any_config() -> impl Strategy<Value = MatchConfig> {
                     prior_trans_q8: pr,
                     prior_rot: prr,
                     radius: ra,
+                    coarse_radius: ra.wrapping_add(3) % 5,
+                    coarse_thin: ra.wrapping_mul(3) % 7,
                     reg_q8: rg,
                     cauchy_q8: ca,
                     max_shift_mm: sh,

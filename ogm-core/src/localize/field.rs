@@ -74,6 +74,19 @@ impl Ramp {
         }
     }
 
+    /// The raw log-odds at or below which a cell weighs nothing.
+    #[inline(always)]
+    pub(crate) fn floor_raw(&self) -> i16 {
+        self.floor.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16
+    }
+
+    /// The weight (Q8, 0..=256) of a raw log-odds above the floor.
+    #[inline(always)]
+    pub(crate) fn weight_q8(&self, raw: i16) -> i32 {
+        let d = (i32::from(raw) - self.floor).clamp(0, self.span) as u32;
+        ((d * self.scale) >> 23) as i32
+    }
+
     /// The map value (Q15, 0..=ONE) of a raw log-odds.
     #[inline(always)]
     pub(crate) fn value(&self, raw: i16) -> i32 {
@@ -110,6 +123,31 @@ pub(crate) struct NearParams {
     /// Cauchy scale c² of the robust weight `c² / (c² + d²)`, Q12 level cells² (d² the point's
     /// squared Mahalanobis distance).
     pub(crate) cauchy: i32,
+}
+
+/// Weighted moments of a window's cells about the point.
+#[derive(Clone, Copy, Debug, Default)]
+struct Moments {
+    s0: i32,
+    s1x: i32,
+    s1y: i32,
+    sxx: i64,
+    sxy: i64,
+    syy: i64,
+}
+
+impl Moments {
+    /// Adds a cell of weight `w` (Q8) at offset (`ex`, `ey`) (Q8).
+    #[inline(always)]
+    fn add(&mut self, w: i32, ex: i32, ey: i32) {
+        let (wx, wy) = (w * ex, w * ey);
+        self.s0 += w;
+        self.s1x += wx;
+        self.s1y += wy;
+        self.sxx += i64::from(wx) * i64::from(ex);
+        self.sxy += i64::from(wx) * i64::from(ey);
+        self.syy += i64::from(wy) * i64::from(ey);
+    }
 }
 
 /// The largest window radius, level cells.
@@ -215,31 +253,81 @@ impl<'a> Field<'a> {
         if x0 < 0 || y0 < 0 || x0 > self.w - side * n || y0 > self.h - side * n {
             return None;
         }
-        let mut block = [[0i32; BLOCK]; BLOCK];
-        self.read_block(x0, y0, n as usize, side as usize, &mut block)?;
         // Moments about the point. Offsets of cell centres, Q8 level cells: |e| ≤ (r + 1)·256
         // ≤ 2^10; weights Q8 ≤ 2^8: first moments < 2^24, second < 2^34 (i64).
         let ex0 = ((i - r) << 8) + 128 - u;
         let ey0 = ((j - r) << 8) + 128 - v;
-        let (mut s0, mut s1x, mut s1y) = (0i32, 0i32, 0i32);
-        let (mut sxx, mut sxy, mut syy) = (0i64, 0i64, 0i64);
-        let mut ey = ey0;
-        for row in block.iter().take(side as usize) {
-            let mut ex = ex0;
-            for val in row.iter().take(side as usize) {
-                let w = val >> 7;
-                if w > 0 {
-                    s0 += w;
-                    s1x += w * ex;
-                    s1y += w * ey;
-                    sxx += i64::from(w * ex) * i64::from(ex);
-                    sxy += i64::from(w * ex) * i64::from(ey);
-                    syy += i64::from(w * ey) * i64::from(ey);
+        let mut m = Moments::default();
+        let (w, side) = (self.w as usize, side as usize);
+        if n == 1 {
+            // The grid's own cells: straight from the rows, free and unknown cells skipped
+            // before any arithmetic (most of a window is free space).
+            let mut ey = ey0;
+            for r in 0..side {
+                let start = (y0 as usize + r) * w + x0 as usize;
+                let row = self.cells.get(start..start + side)?;
+                let mut ex = ex0;
+                for l in row {
+                    if l.0 > self.ramp.floor_raw() {
+                        m.add(self.ramp.weight_q8(l.0), ex, ey);
+                    }
+                    ex += 256;
                 }
-                ex += 256;
+                ey += 256;
             }
-            ey += 256;
+        } else {
+            let n = n as usize;
+            let mut q = [[i16::MIN; BLOCK]; BLOCK];
+            for r in 0..side * n {
+                let start = (y0 as usize + r) * w + x0 as usize;
+                let row = self.cells.get(start..start + side * n)?;
+                let qrow = q.get_mut(r / n)?;
+                // The common block sizes unrolled (2 and 4 cells a row): the loop overhead of a
+                // generic inner loop costs as much as the maxima on a Cortex-M4.
+                match n {
+                    2 => {
+                        for (slot, b) in qrow.iter_mut().zip(row.chunks_exact(2)) {
+                            if let [a, c] = b {
+                                *slot = (*slot).max(a.0.max(c.0));
+                            }
+                        }
+                    }
+                    4 => {
+                        for (slot, b) in qrow.iter_mut().zip(row.chunks_exact(4)) {
+                            if let [a, c, d, e] = b {
+                                *slot = (*slot).max(a.0.max(c.0).max(d.0.max(e.0)));
+                            }
+                        }
+                    }
+                    _ => {
+                        for (slot, b) in qrow.iter_mut().zip(row.chunks_exact(n)) {
+                            for l in b {
+                                *slot = (*slot).max(l.0);
+                            }
+                        }
+                    }
+                }
+            }
+            let mut ey = ey0;
+            for qrow in q.iter().take(side) {
+                let mut ex = ex0;
+                for &l in qrow.iter().take(side) {
+                    if l > self.ramp.floor_raw() {
+                        m.add(self.ramp.weight_q8(l), ex, ey);
+                    }
+                    ex += 256;
+                }
+                ey += 256;
+            }
         }
+        let Moments {
+            s0,
+            s1x,
+            s1y,
+            sxx,
+            sxy,
+            syy,
+        } = m;
         if s0 < MIN_WEIGHT {
             return None;
         }
@@ -276,44 +364,5 @@ impl<'a> Field<'a> {
             oxy: scale(oxy),
             oyy: scale(oyy),
         })
-    }
-
-    /// The ramped maxima of the `side × side` blocks of `n × n` grid cells from (`x0`, `y0`)
-    /// (inside the grid) into `out[row][column]`, from the lower left.
-    fn read_block(
-        &self,
-        x0: i32,
-        y0: i32,
-        n: usize,
-        side: usize,
-        out: &mut [[i32; BLOCK]; BLOCK],
-    ) -> Option<()> {
-        let w = self.w as usize;
-        if n == 1 {
-            for (r, orow) in out.iter_mut().take(side).enumerate() {
-                let start = (y0 as usize + r) * w + x0 as usize;
-                let row = self.cells.get(start..start + side)?;
-                for (o, l) in orow.iter_mut().zip(row) {
-                    *o = self.ramp.value(l.0);
-                }
-            }
-            return Some(());
-        }
-        let mut q = [[i16::MIN; BLOCK]; BLOCK];
-        for r in 0..side * n {
-            let start = (y0 as usize + r) * w + x0 as usize;
-            let row = self.cells.get(start..start + side * n)?;
-            let qrow = q.get_mut(r / n)?;
-            for (slot, b) in qrow.iter_mut().zip(row.chunks_exact(n)) {
-                let m = b.iter().map(|l| l.0).max().unwrap_or(i16::MIN);
-                *slot = (*slot).max(m);
-            }
-        }
-        for (orow, qrow) in out.iter_mut().zip(q).take(side) {
-            for (o, l) in orow.iter_mut().zip(qrow).take(side) {
-                *o = self.ramp.value(l);
-            }
-        }
-        Some(())
     }
 }

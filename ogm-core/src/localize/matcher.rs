@@ -196,16 +196,16 @@ impl Frame<'_> {
         )
     }
 
-    /// One pass at `level` over every `2^level`-th point: the normal equations in Q28 (the
+    /// One pass at `level` over every `stride`-th point: the normal equations in Q28 (the
     /// translation's Jacobian is the identity, 256 in Q8; the rotation's is the point's lever
     /// `(−ry, rx) / 2^lever_k` in Q8 level cells, for `φ = θ · 2^lever_k` level cells).
-    fn pass(&self, s: &State, level: u8, lever_k: u32, np: &NearParams) -> Normal {
+    fn pass(&self, s: &State, level: u8, stride: usize, lever_k: u32, np: &NearParams) -> Normal {
         let (tx, ty, c, sn) = self.transform(s);
         let k = u32::from(level);
         let mut n = Normal::default();
         let (mut h00, mut h01, mut h02, mut h11, mut h12, mut h22) = (0i64, 0, 0, 0, 0, 0);
         let (mut b0, mut b1, mut b2) = (0i64, 0, 0);
-        for p in self.points.iter().step_by(1 << k) {
+        for p in self.points.iter().step_by(stride.max(1)) {
             let (px, py) = (i64::from(p.x), i64::from(p.y));
             // |p| < 2^24 and |c|, |s| ≤ 2^30: the rotated point is below 2^25 in magnitude.
             let rx = ((px * c - py * sn) >> 30) as i32;
@@ -214,8 +214,9 @@ impl Frame<'_> {
                 continue;
             };
             n.used += 1;
-            let jx = i64::from((-(ry >> k)) >> lever_k).clamp(-J_LIM, J_LIM);
-            let jy = i64::from((rx >> k) >> lever_k).clamp(-J_LIM, J_LIM);
+            let lim = J_LIM as i32;
+            let jx = i64::from(((-(ry >> k)) >> lever_k).clamp(-lim, lim));
+            let jy = i64::from(((rx >> k) >> lever_k).clamp(-lim, lim));
             let (oxx, oxy, oyy) = (i64::from(nd.oxx), i64::from(nd.oxy), i64::from(nd.oyy));
             let (mx, my) = (i64::from(nd.mx), i64::from(nd.my));
             // Ω·j and Ω·μ, Q20.
@@ -322,7 +323,7 @@ pub fn match_scan(
     let win_th = i32::from(cfg.max_turn.0.min(32767)) << 8;
 
     // Gauss–Newton, coarse to fine.
-    let np = NearParams {
+    let mut np = NearParams {
         radius: cfg.radius,
         reg: (i32::from(cfg.reg_q8) << 4) + 4096 / 12,
         cauchy: i32::from(cfg.cauchy_q8) << 4,
@@ -338,6 +339,7 @@ pub fn match_scan(
     'levels: for level in (0..=cfg.levels.min(MAX_LEVEL)).rev() {
         let lever_k = frame.lever.saturating_sub(u32::from(level));
         let cost = cfg.pass_reads(level, n);
+        np.radius = cfg.radius_at(level);
         for _ in 0..cfg.iterations {
             if reads + cost > budget {
                 break 'levels;
@@ -345,8 +347,8 @@ pub fn match_scan(
             reads += cost;
             out.work.passes = out.work.passes.saturating_add(1);
             out.work.finest_level = level;
-            let ne = frame.pass(&s, level, lever_k, &np);
-            let evaluated = n.div_ceil(1 << level).max(1) as u64;
+            let ne = frame.pass(&s, level, cfg.stride_at(level), lever_k, &np);
+            let evaluated = n.div_ceil(cfg.stride_at(level)).max(1) as u64;
             out.quality.overlap = (u64::from(ne.used) * 1000 / evaluated).min(1000) as u16;
             if ne.used == 0 {
                 break;

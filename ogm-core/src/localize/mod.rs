@@ -27,7 +27,7 @@
 //! * **Pyramid without memory.** A level-`k` cell is a `2^k × 2^k` block of grid cells whose
 //!   weight is the block's maximum (max-pooling keeps one-cell-thin walls, as Cartographer's
 //!   precomputation grids do), computed on the fly — a 256 × 256 map has no RAM to spare for a
-//!   pooled copy — so coarse levels use every `2^k`-th point only.
+//!   pooled copy — so coarse levels use every `2^(k + coarse_thin)`-th point only.
 //! * **Gauss–Newton with the prediction as a prior.** From [`MatchConfig::levels`] down to the
 //!   grid, up to [`MatchConfig::iterations`] steps per level solve `(H + Λ) δ = b − Λ ξ` with
 //!   `H = Σ JᵀΩJ`, `b = Σ JᵀΩμ` in `i64`. `Λ` weighs the odometry prediction
@@ -48,7 +48,8 @@
 //!
 //! ## Work bound
 //! The unit of work is a cell read. A Gauss–Newton pass at level `k` over `n` points reads at most
-//! `(2r + 1)² · 4^k · ⌈n / 2^k⌉` cells for a window radius `r` ([`MatchConfig::pass_reads`]); the quality probes read `14 n`
+//! `(2r + 1)² · 4^k · ⌈n / s⌉` cells for a window radius `r` and a point stride `s`
+//! ([`MatchConfig::radius_at`], [`MatchConfig::stride_at`], [`MatchConfig::pass_reads`]); the quality probes read `14 n`
 //! ([`MatchConfig::probe_reads`]). [`MatchConfig::budget_reads`] caps the passes: one that does
 //! not fit in what is left is not started (the match then ends at the level it reached), so a
 //! call reads at most `budget_reads + 14 n` cells; [`MatchConfig::max_reads`] gives the bound for
@@ -112,9 +113,16 @@ pub struct MatchConfig {
     pub occupied: LogOdds,
     /// Coarsest pyramid level (0..=[`MAX_LEVEL`]); the match starts there.
     pub levels: u8,
-    /// Radius of the window of cells a point's distribution is taken from, cells of each level
-    /// (1..=[`field::MAX_RADIUS`]); the reach of the match at a level.
+    /// Radius of the window of cells a point's distribution is taken from at the grid's own
+    /// level, cells (1..=[`field::MAX_RADIUS`]): the reach of the final match.
     pub radius: u8,
+    /// The same at the coarse levels (≥ 1), in their cells. Smaller than `radius` because a
+    /// coarse window reads `4^level` times as many grid cells.
+    pub coarse_radius: u8,
+    /// Coarse levels use every `2^(level + coarse_thin)`-th point (the grid's level uses all):
+    /// a coarse pass only has to bring the pose into the next level's reach, and its windows
+    /// read `4^level` grid cells each.
+    pub coarse_thin: u8,
     /// Gauss–Newton steps per level at most (a level ends early once a step is below 1/16 cell).
     pub iterations: u8,
     /// Added to each window's covariance, cells² of its level, Q8 (plus a cell's own extent,
@@ -164,6 +172,8 @@ impl Default for MatchConfig {
             occupied: LogOdds(2048),
             levels: 2,
             radius: 2,
+            coarse_radius: 2,
+            coarse_thin: 1,
             iterations: 6,
             reg_q8: 128,
             cauchy_q8: 1024,
@@ -184,13 +194,13 @@ impl Default for MatchConfig {
 }
 
 impl MatchConfig {
-    /// Checks the settings: `floor < occupied`, `levels ≤ MAX_LEVEL`, `1 ≤ radius ≤ MAX_RADIUS`,
-    /// a non-empty range.
+    /// Checks the settings: `floor < occupied`, `levels ≤ MAX_LEVEL`, both radii in
+    /// `1..=MAX_RADIUS`, a non-empty range.
     pub fn validate(&self) -> Result<()> {
         if self.floor.0 >= self.occupied.0
             || self.levels > MAX_LEVEL
-            || self.radius == 0
-            || self.radius > field::MAX_RADIUS
+            || !(1..=field::MAX_RADIUS).contains(&self.radius)
+            || !(1..=field::MAX_RADIUS).contains(&self.coarse_radius)
             || self.min_range_mm >= self.max_range_mm
         {
             return Err(Error::InvalidModel);
@@ -198,11 +208,31 @@ impl MatchConfig {
         Ok(())
     }
 
+    /// The window radius at `level`: `radius` at 0, `coarse_radius` above (clamped to
+    /// `1..=MAX_RADIUS`).
+    pub fn radius_at(&self, level: u8) -> u8 {
+        let r = if level == 0 {
+            self.radius
+        } else {
+            self.coarse_radius
+        };
+        r.clamp(1, field::MAX_RADIUS)
+    }
+
+    /// The point stride at `level`: 1 at 0, `2^(level + coarse_thin)` above (at most 2^8).
+    pub fn stride_at(&self, level: u8) -> usize {
+        if level == 0 {
+            1
+        } else {
+            1 << (u32::from(level.min(MAX_LEVEL)) + u32::from(self.coarse_thin.min(5)))
+        }
+    }
+
     /// Cell reads of one Gauss–Newton pass at `level` over `n` points.
     pub fn pass_reads(&self, level: u8, n: usize) -> u64 {
         let level = u32::from(level.min(MAX_LEVEL));
-        let stride = 1usize << level;
-        let side = 1 + 2 * u64::from(self.radius.clamp(1, field::MAX_RADIUS));
+        let stride = self.stride_at(level as u8);
+        let side = 1 + 2 * u64::from(self.radius_at(level as u8));
         ((side * side) << (2 * level)) * n.div_ceil(stride) as u64
     }
 

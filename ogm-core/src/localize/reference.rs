@@ -229,8 +229,8 @@ pub fn match_scan_f64(
     } else {
         u64::from(cfg.budget_reads)
     };
-    let np = RefNear {
-        radius: cfg.radius.clamp(1, crate::localize::field::MAX_RADIUS),
+    let mut np = RefNear {
+        radius: cfg.radius_at(0),
         reg: f64::from(cfg.reg_q8) / 256.0 + 1.0 / 12.0,
         cauchy: f64::from(cfg.cauchy_q8) / 256.0,
     };
@@ -239,6 +239,7 @@ pub fn match_scan_f64(
         let scale = f64::from(1u32 << level); // cells per level cell
         let lev = f64::from(1u32 << lever_k);
         let cost = cfg.pass_reads(level, n);
+        np.radius = cfg.radius_at(level);
         for _ in 0..cfg.iterations {
             if reads + cost > budget {
                 break 'levels;
@@ -247,7 +248,7 @@ pub fn match_scan_f64(
             out.passes += 1;
             let (s, c) = (libm::sin(th0 + dth), libm::cos(th0 + dth));
             let (mut h, mut b, mut used) = ([[0.0f64; 3]; 3], [0.0f64; 3], 0u32);
-            for p in points.iter().step_by(1 << level) {
+            for p in points.iter().step_by(cfg.stride_at(level)) {
                 let (px, py) = pts(p);
                 let (rx, ry) = (px * c - py * s, px * s + py * c);
                 let Some([mx, my, oxx, oxy, oyy]) =
@@ -275,7 +276,7 @@ pub fn match_scan_f64(
                     *bv += av;
                 }
             }
-            overlap = f64::from(used) / n.div_ceil(1 << level).max(1) as f64;
+            overlap = f64::from(used) / n.div_ceil(cfg.stride_at(level)).max(1) as f64;
             if used == 0 {
                 break;
             }
