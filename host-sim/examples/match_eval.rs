@@ -3,10 +3,9 @@
 //!
 //! For each log and seed:
 //! * **Truth** is the log's corrected pose of each scan.
-//! * **Odometry** ([`Drift`]): each step's true motion (in the frame of the previous pose)
-//!   with Gaussian noise of `--trans-noise` × distance on each axis and `--rot-noise` × |turn| on
-//!   the heading, plus a heading bias of `--bias-deg-per-m` × distance; the first pose is the
-//!   truth's. Seeded (splitmix64 + Box–Muller): the same seed gives the same odometry.
+//! * **Odometry**: `ogm_core::localize::odometry` (`--odometry issue39|cheap|perfect`, single
+//!   parameters overridable) applied to the truth; the first pose is the truth's. Seeded: the
+//!   same seed gives the same odometry.
 //! * **Matched**: the robot maps online. Scan 0 is inserted at the first pose; each next scan is
 //!   predicted from the last corrected pose plus the odometry step, matched against the map built
 //!   so far (`match_scan`), and inserted at the accepted pose (`MatchResult::accepted`: the
@@ -23,7 +22,8 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 use clap::Parser;
-use host_sim::carmen::{read_log, ReadOptions};
+use host_sim::sim::carmen::{read_log, ReadOptions};
+use ogm_core::localize::odometry::{Odometry, OdometryModel, PoseF};
 use ogm_core::localize::{match_scan, prepare_points, MapView, MatchConfig, ScanPoint, Verdict};
 use ogm_core::map::mapper::marks_len;
 use ogm_core::{
@@ -46,15 +46,23 @@ struct Args {
     /// Mapping range cap, m.
     #[arg(long, default_value_t = 20.0)]
     range_cap_m: f64,
+    /// Odometry model (`ogm_core::localize::odometry`): `issue39` (the issue's mild model),
+    /// `cheap` (an uncalibrated small differential-drive robot), `perfect`; the options below
+    /// override single parameters.
+    #[arg(long, default_value = "cheap")]
+    odometry: String,
     /// Odometry translation noise per metre travelled (σ, each axis).
-    #[arg(long, default_value_t = 0.01)]
-    trans_noise: f64,
+    #[arg(long)]
+    trans_noise: Option<f64>,
     /// Odometry rotation noise per radian turned (σ).
-    #[arg(long, default_value_t = 0.02)]
-    rot_noise: f64,
+    #[arg(long)]
+    rot_noise: Option<f64>,
     /// Odometry heading bias, degrees per metre travelled.
-    #[arg(long, default_value_t = 0.11)]
-    bias_deg_per_m: f64,
+    #[arg(long, allow_hyphen_values = true)]
+    bias_deg_per_m: Option<f64>,
+    /// Odometry turn scale error (fraction).
+    #[arg(long, allow_hyphen_values = true)]
+    turn_scale: Option<f64>,
     /// Do not match: map on odometry alone.
     #[arg(long)]
     no_match: bool,
@@ -358,61 +366,49 @@ fn wrap(a: f64) -> f64 {
 }
 
 /// splitmix64 with Box–Muller: seeded, reproducible, no dependency.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+/// The odometry model the options select.
+fn odometry_model(a: &Args) -> anyhow::Result<OdometryModel> {
+    let mut m = match a.odometry.as_str() {
+        "issue39" => OdometryModel::ISSUE_39,
+        "cheap" => OdometryModel::CHEAP_ROBOT,
+        "perfect" => OdometryModel::PERFECT,
+        other => bail!("unknown odometry model {other} (issue39, cheap, perfect)"),
+    };
+    if let Some(v) = a.trans_noise {
+        m.trans_noise = v;
     }
-    fn uniform(&mut self) -> f64 {
-        ((self.next() >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    if let Some(v) = a.rot_noise {
+        m.rot_noise = v;
     }
-    fn normal(&mut self) -> f64 {
-        let (u, v) = (self.uniform(), self.uniform());
-        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+    if let Some(v) = a.bias_deg_per_m {
+        m.bias_rad_per_m = v.to_radians();
     }
+    if let Some(v) = a.turn_scale {
+        m.turn_scale = v;
+    }
+    Ok(m)
 }
 
-/// The wheel-odometry model.
-#[derive(Clone, Copy, Debug, Serialize)]
-struct Drift {
-    /// σ of the translation noise per mm travelled (each axis).
-    trans: f64,
-    /// σ of the rotation noise per radian turned.
-    rot: f64,
-    /// Heading bias, radians per mm travelled.
-    bias: f64,
+/// The odometry of the true poses under `model`, seeded.
+fn drift(model: OdometryModel, truth: &[P], seed: u64) -> Vec<P> {
+    let mut o = Odometry::new(model, seed);
+    truth
+        .iter()
+        .map(|t| {
+            let q = o.step_f(&PoseF {
+                x: t.x,
+                y: t.y,
+                th: t.th,
+            });
+            P {
+                x: q.x,
+                y: q.y,
+                th: q.th,
+            }
+        })
+        .collect()
 }
 
-impl Drift {
-    fn odometry(&self, truth: &[P], seed: u64) -> Vec<P> {
-        let mut rng = Rng(seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0x39);
-        let mut out = Vec::with_capacity(truth.len());
-        let Some(first) = truth.first() else {
-            return out;
-        };
-        out.push(*first);
-        for w in truth.windows(2) {
-            let d = w[0].between(&w[1]);
-            let dist = d.x.hypot(d.y);
-            let noisy = P {
-                x: d.x + self.trans * dist * rng.normal(),
-                y: d.y + self.trans * dist * rng.normal(),
-                th: d.th + self.rot * d.th.abs() * rng.normal() + self.bias * dist,
-            };
-            let last = *out.last().unwrap_or(first);
-            out.push(last.compose(&noisy));
-        }
-        out
-    }
-}
-
-/// Relative pose error at `delta`: mean translation (m) and rotation (°), and the worst
-/// translation.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 struct Rpe {
     delta: usize,
@@ -496,6 +492,7 @@ struct Counts {
     trusted: usize,
     ambiguous: usize,
     ambiguous_rotation: usize,
+    unconstrained: usize,
     too_few_points: usize,
     no_overlap: usize,
     out_of_window: usize,
@@ -583,12 +580,7 @@ fn run(a: &Args, name: &str, scans: &[(Pose, Vec<Beam>)], seed: u64) -> anyhow::
     // The margin leaves room for the matched poses' errors and odometry's.
     let g = geometry(scans, a.cell_mm, range_mm, 10_000)?;
     let truth: Vec<P> = scans.iter().map(|(p, _)| P::of(p)).collect();
-    let drift = Drift {
-        trans: a.trans_noise,
-        rot: a.rot_noise,
-        bias: a.bias_deg_per_m.to_radians() / 1000.0,
-    };
-    let odo = drift.odometry(&truth, seed);
+    let odo = drift(odometry_model(a)?, &truth, seed);
     let grid =
         LogOddsGrid::new(g, vec![LogOdds::ZERO; g.len()]).map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut mapper = Mapper::new(
@@ -639,6 +631,7 @@ fn run(a: &Args, name: &str, scans: &[(Pose, Vec<Beam>)], seed: u64) -> anyhow::
                     Verdict::Trusted => counts.trusted += 1,
                     Verdict::Ambiguous { .. } => counts.ambiguous += 1,
                     Verdict::AmbiguousRotation => counts.ambiguous_rotation += 1,
+                    Verdict::Unconstrained => counts.unconstrained += 1,
                     Verdict::TooFewPoints => counts.too_few_points += 1,
                     Verdict::NoOverlap => counts.no_overlap += 1,
                     Verdict::OutOfWindow => counts.out_of_window += 1,
@@ -850,7 +843,7 @@ fn main() -> anyhow::Result<()> {
     println!("matcher: {:?}", matcher_config(&a));
     let mut runs = Vec::new();
     println!(
-        "| log | seed | odom RPE1 m/° | match RPE1 | odom RPE10 | match RPE10 | odom RPE100 | match RPE100 | ratio t10/t100 | ratio r10/r100 | odom ATE mean/max m | match ATE | trusted/amb/rot/few/none/win/contra | reads mean/max | ms |"
+        "| log | seed | odom RPE1 m/° | match RPE1 | odom RPE10 | match RPE10 | odom RPE100 | match RPE100 | ratio t10/t100 | ratio r10/r100 | odom ATE mean/max m | match ATE | trusted/amb/rot/unc/few/none/win/contra | reads mean/max | ms |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for f in &files {
@@ -870,7 +863,7 @@ fn main() -> anyhow::Result<()> {
             let c = &r.verdicts;
             let cell = |v: &Rpe| format!("{:.3}/{:.2}", v.trans_m, v.rot_deg);
             println!(
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2}/{:.2} | {:.2}/{:.2} | {:.2}/{:.2} | {:.2}/{:.2} | {}/{}/{}/{}/{}/{}/{} | {:.0}/{} | {:.2} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2}/{:.2} | {:.2}/{:.2} | {:.2}/{:.2} | {:.2}/{:.2} | {}/{}/{}/{}/{}/{}/{}/{} | {:.0}/{} | {:.2} |",
                 r.log,
                 r.seed,
                 cell(&r.odometry[0]),
@@ -890,6 +883,7 @@ fn main() -> anyhow::Result<()> {
                 c.trusted,
                 c.ambiguous,
                 c.ambiguous_rotation,
+                c.unconstrained,
                 c.too_few_points,
                 c.no_overlap,
                 c.out_of_window,

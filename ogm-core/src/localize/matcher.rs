@@ -49,6 +49,9 @@ pub enum Verdict {
     },
     /// The rotation is not constrained (e.g. a round room, or a few points in one spot).
     AmbiguousRotation,
+    /// Neither the rotation nor one direction of translation is constrained: whatever the match
+    /// did, the map cannot tell (e.g. a far-off prediction where a few points graze a wall).
+    Unconstrained,
     /// Fewer usable points than [`MatchConfig::min_points`] (a lidar that sees nothing).
     TooFewPoints,
     /// Too few points land on occupied cells: a new area, or a prediction far off the map.
@@ -513,6 +516,8 @@ fn verdict(q: &Quality, at_edge: bool, cfg: &MatchConfig) -> Verdict {
         Verdict::OutOfWindow
     } else if q.contradicted > cfg.max_contradicted_permille {
         Verdict::Contradicted
+    } else if q.drop_turn < cfg.min_turn_drop_permille && q.drop_weak < cfg.min_drop_permille {
+        Verdict::Unconstrained
     } else if q.drop_turn < cfg.min_turn_drop_permille {
         Verdict::AmbiguousRotation
     } else if q.drop_weak < cfg.min_drop_permille {

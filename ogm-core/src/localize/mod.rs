@@ -1,5 +1,34 @@
 //! Pose correction on the robot: scan-to-map matching against the robot's own log-odds map, so
-//! that wheel odometry is enough (issue 39). Imports [`crate::types`] and [`crate::map`] only.
+//! that wheel odometry is enough (issue 39). A layer above [`crate::map`]: imports
+//! [`crate::types`], [`crate::error`] and [`crate::map`] only (not the sampler, lidar, wire or
+//! session layers), so a [`crate::Session`] can own it.
+//!
+//! ## Using it (what a `Session` does once per scan)
+//! ```
+//! use ogm_core::localize::{MapView, MatchConfig, Tracker};
+//! use ogm_core::{Angle, Beam, GridGeometry, LogOdds, Pose, Range};
+//!
+//! // Owned by the session: settings, a point buffer (8 bytes a point), the correction.
+//! let mut tracker: Tracker<512> = Tracker::new(MatchConfig::default());
+//! let geometry = GridGeometry::new(64, 64, 50, -1600, -1600).unwrap();
+//! let cells = vec![LogOdds::ZERO; geometry.len()];
+//! let beams = [Beam { angle: Angle::ZERO, range: Range::Hit(1000) }];
+//! // Per scan: the map *before* inserting it, the odometry pose, the scan's beams.
+//! let map = MapView::new(&cells, geometry).unwrap();
+//! let c = tracker.update(&map, &Pose::new(10, 0, Angle::ZERO), &beams);
+//! // Insert with `c.pose`; report `c.pose`, `c.verdict()` and `c.matched` (quality, work).
+//! assert_eq!(c.pose, c.predicted); // one beam on an empty map: cannot tell, odometry kept
+//! ```
+//! * [`Tracker::update`]`(map, odometry pose, beams) → `[`Correction`]: the corrected pose to
+//!   insert with (the match if [`Verdict::is_usable`], else the prediction), the prediction, the
+//!   [`MatchResult`] (verdict, [`Quality`], [`Work`]) and what became of the beams.
+//! * The tracker holds map ← odometry ([`Tracker::correct`] maps any odometry pose, e.g. for a
+//!   live view between scans); [`Tracker::set_matching`] turns matching off (the correction
+//!   stays); [`Tracker::reset`] forgets it (new map).
+//! * Work per call is bounded: at most [`MatchConfig::max_reads`]`(N)` cell reads
+//!   ([`MatchConfig::budget_reads`] caps it); memory is the tracker itself, no allocation.
+//! * [`odometry`] is a seeded wheel-odometry model for simulators and evaluations (not used by
+//!   the robot).
 //!
 //! ## What it does
 //! [`match_scan`] takes a read-only map ([`MapView`]: the `LogOdds` cells and their
@@ -66,8 +95,10 @@
 
 pub mod field;
 pub mod matcher;
+pub mod odometry;
 pub mod points;
 mod solve;
+pub mod tracker;
 
 #[cfg(feature = "reference")]
 pub mod reference;
@@ -75,6 +106,7 @@ pub mod reference;
 pub use field::MapView;
 pub use matcher::{match_scan, MatchResult, Quality, Verdict, Work};
 pub use points::{prepare_points, PointStats, ScanPoint};
+pub use tracker::{Correction, Tracker};
 
 use crate::error::{Error, Result};
 use crate::types::angle::Angle;
@@ -177,13 +209,13 @@ impl Default for MatchConfig {
             iterations: 6,
             reg_q8: 128,
             cauchy_q8: 1024,
-            prior_trans_q8: 256,
+            prior_trans_q8: 64,
             prior_rot: 100,
             max_shift_mm: 300,
             max_turn: Angle(1092), // 6°
             probe_mm: 100,
             min_points: 30,
-            min_overlap_permille: 300,
+            min_overlap_permille: 150,
             free: LogOdds(-2048),
             max_contradicted_permille: 700,
             min_drop_permille: 150,

@@ -396,6 +396,10 @@ pub fn match_scan_f64(
         Verdict::OutOfWindow
     } else if permille(q.contradicted) > cfg.max_contradicted_permille {
         Verdict::Contradicted
+    } else if permille(q.drop_turn) < cfg.min_turn_drop_permille
+        && permille(q.drop_weak) < cfg.min_drop_permille
+    {
+        Verdict::Unconstrained
     } else if permille(q.drop_turn) < cfg.min_turn_drop_permille {
         Verdict::AmbiguousRotation
     } else if permille(q.drop_weak) < cfg.min_drop_permille {
