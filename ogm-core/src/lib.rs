@@ -46,9 +46,10 @@ pub mod types;
 pub mod config;
 pub mod wire;
 
-pub mod localize;
 pub mod map;
 pub mod sampler;
+
+pub mod localize;
 
 pub mod lidar;
 
