@@ -19,6 +19,8 @@
 mod fmt;
 
 pub mod app;
+#[cfg(feature = "bench-match")]
+pub mod bench_match;
 pub mod platform;
 pub mod selftest;
 pub mod sizes;

@@ -582,3 +582,89 @@ fn seen_through_map_contradicts() {
     assert!(r.quality.contradicted < 20, "{r:?}");
     assert_eq!(r.verdict, Verdict::Trusted, "{r:?}");
 }
+
+/// The Session-facing API on bad input: a lidar that sees nothing, an odometry jump, and a
+/// corridor's open direction. Each time the tracker says it cannot tell (or which part it cannot
+/// tell) and maps on the odometry prediction; a good scan afterwards is corrected again.
+#[test]
+fn tracker_keeps_odometry_when_it_cannot_tell() {
+    use ogm_core::localize::Tracker;
+    let (g, cells) = room_map();
+    let map = MapView::new(&cells, g).unwrap();
+    let mut t: Tracker<512> = Tracker::new(MatchConfig::default());
+    let truth = (3300.0, 1900.0, 0.7);
+    // First scan: odometry's frame is the map's; the match confirms it.
+    let first = t.update(&map, &pose_of(truth), &scan(&room(), truth, 450, 10_000.0));
+    assert!(first.verdict().unwrap().is_usable(), "{first:?}");
+    let (d, _) = err(&first.pose, truth);
+    assert!(d < 10.0, "{first:?}");
+    // A lidar that sees nothing: the prediction, TooFewPoints.
+    let odo = pose_of((truth.0 + 100.0, truth.1, truth.2));
+    let blind: Vec<Beam> = (0..450)
+        .map(|i| Beam {
+            angle: Angle::from_centidegrees(i * 80),
+            range: Range::NoReturn,
+        })
+        .collect();
+    let c = t.update(&map, &odo, &blind);
+    assert_eq!(c.verdict(), Some(Verdict::TooFewPoints));
+    assert_eq!(c.pose, c.predicted);
+    // Odometry jumps 0.8 m along x: not trusted, and the pose stays at the prediction (at this
+    // offset the room's x walls are out of the windows' reach, so x is reported open — Ambiguous
+    // — and the prior holds it where odometry put it: mapping goes on on odometry).
+    let jumped = pose_of((truth.0 + 900.0, truth.1, truth.2));
+    let c = t.update(&map, &jumped, &scan(&room(), truth, 450, 10_000.0));
+    assert!(!c.verdict().unwrap().is_trusted(), "{c:?}");
+    let moved =
+        f64::from(c.pose.x_mm - c.predicted.x_mm).hypot(f64::from(c.pose.y_mm - c.predicted.y_mm));
+    assert!(moved < 60.0, "{c:?}");
+    // Matching off: the correction is still applied, nothing matched.
+    t.set_matching(false);
+    let c = t.update(&map, &jumped, &scan(&room(), truth, 450, 10_000.0));
+    assert_eq!(c.matched, None);
+    assert_eq!(c.pose, t.correct(&jumped));
+    // Reset: the next pose is odometry's, and a good scan there matches.
+    t.set_matching(true);
+    t.reset();
+    let near = (truth.0 + 40.0, truth.1 - 30.0, truth.2 + 0.02);
+    let c = t.update(&map, &pose_of(near), &scan(&room(), truth, 450, 10_000.0));
+    assert_eq!(c.predicted, pose_of(near));
+    let (before, _) = err(&c.predicted, truth);
+    let (after, _) = err(&c.pose, truth);
+    assert!(c.verdict().unwrap().is_usable() && after < before, "{c:?}");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+    /// The tracker over several scans of anything never panics and keeps its work bound.
+    #[test]
+    fn tracker_never_panics(
+        scans in proptest::collection::vec((any_pose(), any_beams(), any::<bool>()), 1..5),
+        cfg in any_config(),
+        seed in any::<u64>(),
+    ) {
+        use ogm_core::localize::Tracker;
+        let g = GridGeometry::new(40, 40, 50, -1000, -1000).unwrap();
+        let mut x = seed | 1;
+        let cells: Vec<LogOdds> = (0..g.len())
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                LogOdds((x >> 48) as i16)
+            })
+            .collect();
+        let map = MapView::new(&cells, g).unwrap();
+        let mut t: Tracker<128> = Tracker::new(cfg);
+        for (odo, beams, on) in &scans {
+            t.set_matching(*on);
+            let c = t.update(&map, odo, beams);
+            if let Some(m) = c.matched {
+                prop_assert!(u64::from(m.work.reads) <= cfg.max_reads(128));
+                if !m.verdict.is_usable() {
+                    prop_assert_eq!(c.pose, c.predicted);
+                }
+            }
+        }
+    }
+}
