@@ -914,7 +914,7 @@ fn cfg_check(a: &Args) -> anyhow::Result<()> {
     matcher_config(a)
         .validate()
         .map_err(|e| anyhow::anyhow!("matcher settings: {e}"))?;
-    if a.cell_mm == 0 || !(a.range_cap_m > 0.0) {
+    if a.cell_mm == 0 || a.range_cap_m.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         bail!("--cell-mm and --range-cap-m must be positive");
     }
     Ok(())
