@@ -52,6 +52,7 @@ fuzz_target!(|input: Input| {
         coarse_radius: (c[3] / 5 % 5) as u8,
         coarse_thin: (c[3] / 25 % 8) as u8,
         iterations: (c[4] % 16) as u8,
+        turn_search: (c[4] / 16 % 8) as u8,
         reg_q8: c[5],
         cauchy_q8: c[6],
         prior_trans_q8: c[7],

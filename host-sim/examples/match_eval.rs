@@ -69,6 +69,10 @@ struct Args {
     /// Use trusted matches only (not the regularised pose of an ambiguous one).
     #[arg(long)]
     strict: bool,
+    /// Which scans are inserted into the map: `all`, `usable` (verdict usable or no overlap),
+    /// `trusted` (trusted or no overlap).
+    #[arg(long, default_value = "all")]
+    insert: String,
     /// Matcher: coarsest level.
     #[arg(long)]
     levels: Option<u8>,
@@ -114,6 +118,27 @@ struct Args {
     /// Matcher: most points deep in free space, ‰.
     #[arg(long)]
     max_contradicted: Option<u16>,
+    /// Matcher: headings tried each side before Gauss–Newton.
+    #[arg(long)]
+    turn_search: Option<u8>,
+    /// Matcher: heading window, degrees.
+    #[arg(long)]
+    max_turn_deg: Option<f64>,
+    /// Experiment: translation prior per point as `K / d²` (d: odometry step, m; clamped), K given.
+    #[arg(long)]
+    prior_per_m: Option<f64>,
+    /// Experiment: rotation prior as `K / (0.05·|dθ| + 0.2°/m·d)²` scaled, K given.
+    #[arg(long)]
+    prior_rot_k: Option<f64>,
+    /// Experiment: heading σ per radian turned for `--prior-rot-k`.
+    #[arg(long, default_value_t = 0.05)]
+    prior_rot_a: f64,
+    /// Experiment: heading σ per metre for `--prior-rot-k`, rad/m.
+    #[arg(long, default_value_t = 0.0035)]
+    prior_rot_b: f64,
+    /// Matcher: log-odds of observed free.
+    #[arg(long, allow_hyphen_values = true)]
+    free: Option<i16>,
     /// Matcher: search window, mm.
     #[arg(long)]
     max_shift_mm: Option<u32>,
@@ -132,10 +157,22 @@ struct Args {
     /// Print one line per scan (pose errors, verdict).
     #[arg(long)]
     trace: bool,
+    /// Diagnostic: per verdict, the mean one-step error (mm along / across the truth's motion,
+    /// degrees) of the prediction and of the accepted pose, relative to the previous estimate.
+    #[arg(long)]
+    step_errors: bool,
     /// Diagnostic: match every scan, from its odometry-drifted prediction, against the map of
     /// all scans at their true poses (the matcher's floor, no online map).
     #[arg(long)]
     oracle_map: bool,
+    /// With `--oracle-map`: predict from the previous *estimate* (errors accumulate as online,
+    /// but the map is the truth's): what the online map's own errors cost.
+    #[arg(long)]
+    oracle_chain: bool,
+    /// Diagnostic: map online (only the scans so far) but insert each scan at its *true* pose:
+    /// what the map's incompleteness costs, without its pose errors.
+    #[arg(long)]
+    truth_insert: bool,
     /// Diagnostic: how consistent are the truth poses with the scans? Point-to-line ICP (f64)
     /// between scans i and i+1 started from the truth's relative pose; prints how far it moves.
     #[arg(long)]
@@ -569,6 +606,15 @@ fn matcher_config(a: &Args) -> MatchConfig {
     if let Some(v) = a.max_contradicted {
         c.max_contradicted_permille = v;
     }
+    if let Some(v) = a.free {
+        c.free = LogOdds(v);
+    }
+    if let Some(v) = a.turn_search {
+        c.turn_search = v;
+    }
+    if let Some(v) = a.max_turn_deg {
+        c.max_turn = Angle::from_degrees(v);
+    }
     if let Some(v) = a.max_shift_mm {
         c.max_shift_mm = v;
     }
@@ -603,11 +649,14 @@ fn run(a: &Args, name: &str, scans: &[(Pose, Vec<Beam>)], seed: u64) -> anyhow::
     let (mut points, mut reads, mut passes, mut max_reads, mut matched_scans) =
         (0usize, 0u64, 0u64, 0u32, 0usize);
     let mut match_time = 0.0f64;
+    // Per verdict: count, Σ|pred along|, Σ|pred across|, Σ|pred rot|, the same for the accepted pose.
+    let mut steps: std::collections::BTreeMap<String, [f64; 9]> = Default::default();
     for (i, (_, beams)) in scans.iter().enumerate() {
+        let mut insert = true;
         let pose = if i == 0 {
             odo[0]
         } else {
-            let prev = if a.oracle_map {
+            let prev = if a.oracle_map && !a.oracle_chain {
                 truth[i - 1]
             } else {
                 est[i - 1]
@@ -620,6 +669,17 @@ fn run(a: &Args, name: &str, scans: &[(Pose, Vec<Beam>)], seed: u64) -> anyhow::
                 let t = Instant::now();
                 let st = prepare_points(beams, g.cell_mm(), &cfg, &mut buf);
                 let map = MapView::of(mapper.grid());
+                let mut cfg = cfg;
+                let step = odo[i - 1].between(&odo[i]);
+                if let Some(k) = a.prior_per_m {
+                    let d = (step.x.hypot(step.y) / 1000.0).max(0.05);
+                    cfg.prior_trans_q8 = (k / (d * d)).round().clamp(1.0, 65535.0) as u16;
+                }
+                if let Some(k) = a.prior_rot_k {
+                    let d = step.x.hypot(step.y) / 1000.0;
+                    let sig = a.prior_rot_a * step.th.abs() + a.prior_rot_b * d + 0.002;
+                    cfg.prior_rot = (k / (sig * sig)).round().clamp(1.0, 65535.0) as u16;
+                }
                 let r = match_scan(&map, &buf[..st.kept], &predicted, &cfg);
                 match_time += t.elapsed().as_secs_f64();
                 matched_scans += 1;
@@ -637,6 +697,11 @@ fn run(a: &Args, name: &str, scans: &[(Pose, Vec<Beam>)], seed: u64) -> anyhow::
                     Verdict::OutOfWindow => counts.out_of_window += 1,
                     Verdict::Contradicted => counts.contradicted += 1,
                 }
+                insert = match a.insert.as_str() {
+                    "usable" => r.verdict.is_usable() || r.verdict == Verdict::NoOverlap,
+                    "trusted" => r.verdict.is_trusted() || r.verdict == Verdict::NoOverlap,
+                    _ => true,
+                };
                 let take = if a.strict {
                     r.verdict.is_trusted()
                 } else {
@@ -662,6 +727,38 @@ fn run(a: &Args, name: &str, scans: &[(Pose, Vec<Beam>)], seed: u64) -> anyhow::
                         r.verdict, r.quality
                     );
                 }
+                if a.step_errors {
+                    let tr = truth[i - 1].between(&truth[i]);
+                    let len = tr.x.hypot(tr.y).max(1.0);
+                    let err = |q: &P| {
+                        let e = prev.between(q);
+                        let (ex, ey) = (e.x - tr.x, e.y - tr.y);
+                        let along = (ex * tr.x + ey * tr.y) / len;
+                        let across = (ey * tr.x - ex * tr.y) / len;
+                        (along, across, wrap(e.th - tr.th).to_degrees())
+                    };
+                    let (pa, pc, pr) = err(&pred);
+                    let (ma, mc, mr) = err(&P::of(&chosen));
+                    let key = format!("{:?}", r.verdict)
+                        .chars()
+                        .take_while(|c| *c != ' ')
+                        .collect();
+                    let e = steps.entry(key).or_default();
+                    let vals = [
+                        1.0,
+                        pa.abs(),
+                        pc.abs(),
+                        pr.abs(),
+                        ma.abs(),
+                        mc.abs(),
+                        mr.abs(),
+                        ma,
+                        mr,
+                    ];
+                    for (acc, v) in e.iter_mut().zip(vals) {
+                        *acc += v;
+                    }
+                }
                 // Keep the unrounded prediction unless the match moved the pose.
                 if take {
                     P::of(&chosen)
@@ -671,11 +768,19 @@ fn run(a: &Args, name: &str, scans: &[(Pose, Vec<Beam>)], seed: u64) -> anyhow::
             }
         };
         est.push(pose);
-        if !a.oracle_map {
+        if !a.oracle_map && insert {
+            let at = if a.truth_insert { truth[i] } else { pose };
             mapper
-                .insert_scan(&pose.pose(), beams)
+                .insert_scan(&at.pose(), beams)
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
         }
+    }
+    for (k, v) in &steps {
+        let n = v[0].max(1.0);
+        println!(
+            "{name} {seed} {k:18} n {:4} pred along {:5.1} across {:5.1} mm {:5.2}° -> {:5.1} {:5.1} mm {:5.2}° (signed along {:5.1} mm, turn {:5.2}°)",
+            v[0], v[1] / n, v[2] / n, v[3] / n, v[4] / n, v[5] / n, v[6] / n, v[7] / n, v[8] / n
+        );
     }
     let deltas = [1usize, 10, 100];
     let m = matched_scans.max(1) as f64;
@@ -903,6 +1008,14 @@ fn main() -> anyhow::Result<()> {
         worst(&|r| r.matched[2].trans_m / r.odometry[2].trans_m),
         worst(&|r| r.matched[1].rot_deg / r.odometry[1].rot_deg),
         worst(&|r| r.matched[2].rot_deg / r.odometry[2].rot_deg),
+    );
+    let mean = |f: &dyn Fn(&Run) -> f64| runs.iter().map(f).sum::<f64>() / runs.len().max(1) as f64;
+    println!(
+        "mean ratio matched/odometry: t10 {:.3} t100 {:.3} r10 {:.3} r100 {:.3}",
+        mean(&|r| r.matched[1].trans_m / r.odometry[1].trans_m),
+        mean(&|r| r.matched[2].trans_m / r.odometry[2].trans_m),
+        mean(&|r| r.matched[1].rot_deg / r.odometry[1].rot_deg),
+        mean(&|r| r.matched[2].rot_deg / r.odometry[2].rot_deg),
     );
     if let Some(p) = &a.json {
         std::fs::write(p, serde_json::to_string_pretty(&runs)?)?;

@@ -160,6 +160,45 @@ fn recovers_a_known_offset_in_a_room() {
     }
 }
 
+/// A heading error of 8–9.5° (a cheap robot's turn) without the pyramid: far points are out of
+/// every window's reach and Gauss–Newton alone stops degrees short (or cannot tell); the heading
+/// search ([`MatchConfig::turn_search`]) starts it in the right basin.
+#[test]
+fn heading_search_recovers_a_large_turn_error() {
+    let (g, cells) = room_map();
+    let map = MapView::new(&cells, g).unwrap();
+    let truth = (3300.0, 1900.0, 0.7);
+    let searched = MatchConfig {
+        levels: 0,
+        ..loose()
+    };
+    assert!(searched.turn_search > 0 && searched.max_turn.0 >= Angle::from_degrees(9.5).0);
+    let pts = points(&scan(&room(), truth, 450, 10_000.0), &g, &searched);
+    for oth in [8.0f64, -8.0, 9.5, -9.5] {
+        let predicted = pose_of((truth.0 + 20.0, truth.1 - 15.0, truth.2 + oth.to_radians()));
+        let with = match_scan(&map, &pts, &predicted, &searched);
+        let without = match_scan(
+            &map,
+            &pts,
+            &predicted,
+            &MatchConfig {
+                turn_search: 0,
+                ..searched
+            },
+        );
+        let (dw, aw) = err(&with.pose, truth);
+        let (_, ao) = err(&without.pose, truth);
+        assert_eq!(with.verdict, Verdict::Trusted, "{oth}°: {with:?}");
+        assert!(dw < 5.0 && aw < 0.1, "{oth}°: {dw:.1} mm {aw:.2}° {with:?}");
+        assert!(
+            ao > 2.0 || !without.verdict.is_trusted(),
+            "{oth}°: without the search {ao:.2}° {without:?}"
+        );
+        let budget = searched.max_reads(pts.len());
+        assert!(u64::from(with.work.reads) <= budget, "{with:?} > {budget}");
+    }
+}
+
 #[test]
 fn corridor_is_ambiguous_along_its_axis() {
     let g = GridGeometry::new(600, 60, 50, -25, -625).unwrap();

@@ -196,6 +196,27 @@ impl<'a> Field<'a> {
         self.cells.get(idx).map_or(0, |l| self.ramp.value(l.0))
     }
 
+    /// The largest map value of the 2 × 2 block of cells (a level-1 cell) containing the
+    /// sub-cell position, 0 outside the grid: four reads.
+    #[inline]
+    pub(crate) fn pooled(&self, gx: i32, gy: i32) -> i32 {
+        let (i, j) = ((gx >> 9) << 1, (gy >> 9) << 1);
+        if i < 0 || j < 0 || i + 1 >= self.w || j + 1 >= self.h {
+            return 0;
+        }
+        let (w, i, j) = (self.w as usize, i as usize, j as usize);
+        let a = self.cells.get(j * w + i..j * w + i + 2);
+        let b = self.cells.get((j + 1) * w + i..(j + 1) * w + i + 2);
+        let m = a
+            .into_iter()
+            .chain(b)
+            .flatten()
+            .map(|l| l.0)
+            .max()
+            .unwrap_or(i16::MIN);
+        self.ramp.value(m)
+    }
+
     /// Whether the map has seen through the point: its cell and the cells two and four cells
     /// farther along the beam (direction `(rx, ry)`, the point relative to the robot) are all
     /// inside the grid and at or below `free`. Three reads.

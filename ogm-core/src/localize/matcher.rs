@@ -332,8 +332,11 @@ pub fn match_scan(
         cauchy: i32::from(cfg.cauchy_q8) << 4,
     };
     let mut s = State::default();
+    if cfg.turn_search > 0 {
+        s.dth = turn_search(&frame, cfg, win_th);
+    }
     let mut at_edge = false;
-    let mut reads = 0u64;
+    let mut reads = cfg.search_reads(n);
     let budget = if cfg.budget_reads == 0 {
         u64::MAX
     } else {
@@ -401,6 +404,77 @@ pub fn match_scan(
         .saturating_add(MatchConfig::probe_reads(n) as u32);
     out.verdict = verdict(&out.quality, at_edge, cfg);
     out
+}
+
+/// The heading search step, 1/256 angle unit: the turn that moves a point at the lever
+/// distance (`2^lever` cells) by one cell, `2^−lever` rad, at least one angle unit.
+pub(crate) fn turn_step(lever: u32) -> i32 {
+    // 2^−lever rad is 256 >> lever in Q8 rad; Q8 rad × the constant >> 16 is 1/256 units.
+    ((Q8_UNITS_PER_RAD_Q16 >> (8 + lever.min(MAX_LEVER))) as i32).max(256)
+}
+
+/// The heading search ([`MatchConfig::turn_search`]): the correction of the heading (1/256
+/// angle unit, within `±win_th`) whose points score best on the grid max-pooled 2 × 2, the
+/// prediction's translation kept; 0 (the prediction) unless another heading scores higher.
+fn turn_search(frame: &Frame<'_>, cfg: &MatchConfig, win_th: i32) -> i32 {
+    let step = turn_step(frame.lever);
+    let stride = cfg.stride_at(1);
+    let k = i32::from(cfg.turn_search);
+    let (mut best, mut best_score) = (0i32, -1i64);
+    // From the prediction outwards, alternating sides: a tie keeps the smaller turn.
+    for i in 0..=2 * k {
+        let j = if i % 2 == 1 { (i + 1) / 2 } else { -(i / 2) };
+        let dth = j.saturating_mul(step);
+        if dth.abs() > win_th {
+            continue;
+        }
+        let (tx, ty, c, sn) = frame.transform(&State {
+            dth,
+            ..State::default()
+        });
+        let mut score = 0i64;
+        for p in frame.points.iter().step_by(stride) {
+            let (px, py) = (i64::from(p.x), i64::from(p.y));
+            let gx = tx + ((px * c - py * sn) >> 30) as i32;
+            let gy = ty + ((px * sn + py * c) >> 30) as i32;
+            score += i64::from(frame.field.pooled(gx, gy));
+        }
+        if score > best_score {
+            (best, best_score) = (dth, score);
+        }
+    }
+    best
+}
+
+/// The heading search of [`match_scan`] on its own, for the `f64` reference (which shares it:
+/// the search is discrete, its arithmetic is exact): the heading correction in 1/256 angle
+/// unit, 0 if the search is off or the prediction is too far from the grid.
+#[cfg(feature = "reference")]
+pub(crate) fn heading_search(
+    map: &MapView<'_>,
+    points: &[ScanPoint],
+    predicted: &Pose,
+    cfg: &MatchConfig,
+) -> i32 {
+    let points = points.get(..points.len().min(MAX_POINTS)).unwrap_or(&[]);
+    let g = map.geometry();
+    let cell = i64::from(g.cell_mm().max(1));
+    let (ox, oy) = g.origin_mm();
+    let to_sub = |mm: i64| (mm * i64::from(SUB)).div_euclid(cell);
+    let gx0 = to_sub(i64::from(predicted.x_mm) - i64::from(ox));
+    let gy0 = to_sub(i64::from(predicted.y_mm) - i64::from(oy));
+    if cfg.turn_search == 0 || gx0.abs() > MAX_POSE_SUB || gy0.abs() > MAX_POSE_SUB {
+        return 0;
+    }
+    let frame = Frame {
+        field: Field::new(map, Ramp::new(cfg.floor, cfg.occupied)),
+        points,
+        gx0: gx0 as i32,
+        gy0: gy0 as i32,
+        th0: u32::from(predicted.heading.0) << 8,
+        lever: lever_of(points),
+    };
+    turn_search(&frame, cfg, i32::from(cfg.max_turn.0.min(32767)) << 8)
 }
 
 /// One regularised Gauss–Newton step in Q8 level cells (x, y, φ), each at most one level cell.

@@ -57,6 +57,10 @@
 //!   weight is the block's maximum (max-pooling keeps one-cell-thin walls, as Cartographer's
 //!   precomputation grids do), computed on the fly — a 256 × 256 map has no RAM to spare for a
 //!   pooled copy — so coarse levels use every `2^(k + coarse_thin)`-th point only.
+//! * **Heading search first.** Wheel odometry's error is mostly the heading, and a few degrees
+//!   put far points out of every window's reach. Before Gauss–Newton, `2·`[`MatchConfig::turn_search`]
+//!   ` + 1` headings one cell at the lever apart (within [`MatchConfig::max_turn`]) are scored
+//!   on the grid max-pooled 2 × 2, translation kept; the best one is where Gauss–Newton starts.
 //! * **Gauss–Newton with the prediction as a prior.** From [`MatchConfig::levels`] down to the
 //!   grid, up to [`MatchConfig::iterations`] steps per level solve `(H + Λ) δ = b − Λ ξ` with
 //!   `H = Σ JᵀΩJ`, `b = Σ JᵀΩμ` in `i64`. `Λ` weighs the odometry prediction
@@ -79,7 +83,8 @@
 //! The unit of work is a cell read. A Gauss–Newton pass at level `k` over `n` points reads at most
 //! `(2r + 1)² · 4^k · ⌈n / s⌉` cells for a window radius `r` and a point stride `s`
 //! ([`MatchConfig::radius_at`], [`MatchConfig::stride_at`], [`MatchConfig::pass_reads`]); the quality probes read `14 n`
-//! ([`MatchConfig::probe_reads`]). [`MatchConfig::budget_reads`] caps the passes: one that does
+//! ([`MatchConfig::probe_reads`]), the heading search `4 · (2·turn_search + 1) · ⌈n / stride_at(1)⌉`
+//! ([`MatchConfig::search_reads`]). [`MatchConfig::budget_reads`] caps the passes: one that does
 //! not fit in what is left is not started (the match then ends at the level it reached), so a
 //! call reads at most `budget_reads + 14 n` cells; [`MatchConfig::max_reads`] gives the bound for
 //! `n` points and [`Work::reads`] what a call used. Per read the M4 spends a few instructions,
@@ -171,6 +176,12 @@ pub struct MatchConfig {
     pub max_shift_mm: u32,
     /// The correction may turn the pose this far from the prediction.
     pub max_turn: Angle,
+    /// Headings tried each side of the prediction before Gauss–Newton (0 = none), one
+    /// [`MatchConfig::turn_step`] apart and within `max_turn`: the best-scoring one (points on
+    /// the grid max-pooled 2 × 2) is where Gauss–Newton starts. Wheel odometry's error is mostly
+    /// the heading, and a heading error of a few degrees moves far points out of every window's
+    /// reach, where Gauss–Newton only finds part of the way back.
+    pub turn_search: u8,
     /// Displacement of the quality probes.
     pub probe_mm: u32,
     /// Fewer points than this: [`Verdict::TooFewPoints`].
@@ -212,7 +223,8 @@ impl Default for MatchConfig {
             prior_trans_q8: 64,
             prior_rot: 100,
             max_shift_mm: 300,
-            max_turn: Angle(1092), // 6°
+            max_turn: Angle(1820), // 10°
+            turn_search: 4,
             probe_mm: 100,
             min_points: 30,
             min_overlap_permille: 150,
@@ -268,6 +280,15 @@ impl MatchConfig {
         ((side * side) << (2 * level)) * n.div_ceil(stride) as u64
     }
 
+    /// Cell reads of the heading search over `n` points: `2·turn_search + 1` headings, every
+    /// `stride_at(1)`-th point, four cells each.
+    pub fn search_reads(&self, n: usize) -> u64 {
+        if self.turn_search == 0 {
+            return 0;
+        }
+        (2 * u64::from(self.turn_search) + 1) * 4 * n.div_ceil(self.stride_at(1)) as u64
+    }
+
     /// Cell reads of the quality probes over `n` points (the score at the pose, four
     /// directions ±, two turns, and three cells along each beam for [`Quality::contradicted`]).
     pub fn probe_reads(n: usize) -> u64 {
@@ -284,6 +305,6 @@ impl MatchConfig {
         if self.budget_reads != 0 {
             passes = passes.min(u64::from(self.budget_reads));
         }
-        passes + MatchConfig::probe_reads(n)
+        passes + self.search_reads(n) + MatchConfig::probe_reads(n)
     }
 }

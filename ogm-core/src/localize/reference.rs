@@ -220,10 +220,15 @@ pub fn match_scan_f64(
     let win = (f64::from(cfg.max_shift_mm) / cell).min((1u64 << 26) as f64 / sub);
     let win_th = f64::from(cfg.max_turn.0.min(32767)) / 65536.0 * core::f64::consts::TAU;
 
-    let (mut dx, mut dy, mut dth) = (0.0f64, 0.0f64, 0.0f64);
+    let (mut dx, mut dy) = (0.0f64, 0.0f64);
+    // The heading search is discrete and exact: shared with the fixed-point matcher.
+    let mut dth = f64::from(crate::localize::matcher::heading_search(
+        map, points, predicted, cfg,
+    )) / (256.0 * 65536.0)
+        * core::f64::consts::TAU;
     let mut at_edge = false;
     let mut overlap = 0.0f64;
-    let mut reads = 0u64;
+    let mut reads = cfg.search_reads(n);
     let budget = if cfg.budget_reads == 0 {
         u64::MAX
     } else {
