@@ -109,19 +109,18 @@ pub fn run<P: Platform>(grid: &mut [LogOdds], marks: &mut [u32], w: u16, h: u16,
     let configs: [(&str, MatchConfig); 3] = [
         ("default", d),
         (
-            "spacing 60, coarse_thin 2",
+            "no budget",
             MatchConfig {
-                min_spacing_mm: 60,
-                coarse_thin: 2,
+                budget_reads: 0,
                 ..d
             },
         ),
         (
-            "r1 thin2 l1",
+            "round 3 (levels 2, spacing 30, no budget)",
             MatchConfig {
-                radius: 1,
-                coarse_thin: 2,
-                levels: 1,
+                levels: 2,
+                min_spacing_mm: 30,
+                budget_reads: 0,
                 ..d
             },
         ),

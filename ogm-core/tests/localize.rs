@@ -199,6 +199,54 @@ fn heading_search_recovers_a_large_turn_error() {
     }
 }
 
+/// The budget is a hard cap on the search and the passes (reads ≤ budget + probes), and a match
+/// it cuts short still ends on the grid's level, still recovering the offset.
+#[test]
+fn budget_caps_work_and_keeps_the_final_level() {
+    let (g, cells) = room_map();
+    let map = MapView::new(&cells, g).unwrap();
+    let truth = (3300.0, 1900.0, 0.7);
+    let full = MatchConfig {
+        levels: 2,
+        ..loose()
+    };
+    let pts = points(&scan(&room(), truth, 450, 10_000.0), &g, &full);
+    let n = pts.len();
+    let predicted = pose_of((truth.0 + 60.0, truth.1 - 40.0, truth.2 + 2f64.to_radians()));
+    let probes = MatchConfig::probe_reads(n);
+    let one_fine = full.pass_reads(0, n);
+    for budget in [0u32, 1_000, one_fine as u32, 30_000, 50_000] {
+        let cfg = MatchConfig {
+            budget_reads: budget,
+            ..full
+        };
+        let r = match_scan(&map, &pts, &predicted, &cfg);
+        assert!(
+            u64::from(r.work.reads) <= cfg.max_reads(n),
+            "{budget}: {r:?}"
+        );
+        if budget > 0 {
+            assert!(
+                u64::from(r.work.reads) <= u64::from(budget) + probes,
+                "{budget}: {r:?}"
+            );
+        }
+        if budget == 0 || u64::from(budget) >= cfg.search_reads(n) + one_fine {
+            assert_eq!(r.work.finest_level, 0, "{budget}: {r:?}");
+            // From 72 mm / 2° off: a short budget leaves a coarser match, still mostly corrected.
+            let (d, a) = err(&r.pose, truth);
+            let (dl, al) = if budget == 0 {
+                (5.0, 0.1)
+            } else if budget >= 50_000 {
+                (10.0, 0.1)
+            } else {
+                (30.0, 0.5)
+            };
+            assert!(d < dl && a < al, "{budget}: {d:.1} mm {a:.2}° {r:?}");
+        }
+    }
+}
+
 #[test]
 fn corridor_is_ambiguous_along_its_axis() {
     let g = GridGeometry::new(600, 60, 50, -25, -625).unwrap();

@@ -5,7 +5,7 @@
 //! 1/256 angle unit. Working on the correction keeps the numbers small whatever the pose (the
 //! window bounds it), and the prior and the window are then tests on the state itself.
 
-use crate::localize::field::{Field, MapView, NearParams, Ramp, ONE};
+use crate::localize::field::{Cell, Field, MapView, NearParams, Ramp, ONE};
 use crate::localize::points::ScanPoint;
 use crate::localize::solve::{eigen2, solve3};
 use crate::localize::{MatchConfig, MAX_LEVEL, MAX_POINTS, SUB};
@@ -213,7 +213,9 @@ impl Frame<'_> {
             // |p| < 2^24 and |c|, |s| ≤ 2^30: the rotated point is below 2^25 in magnitude.
             let rx = ((px * c - py * sn) >> 30) as i32;
             let ry = ((px * sn + py * c) >> 30) as i32;
-            let Some(nd) = self.field.near(tx + rx, ty + ry, level, np) else {
+            let at = Cell::of(tx + rx, ty + ry, level);
+            let win = self.field.window(at.i, at.j, level, np);
+            let Some(nd) = win.map(|w| w.near(&at, np)) else {
                 continue;
             };
             n.used += 1;
@@ -332,7 +334,7 @@ pub fn match_scan(
         cauchy: i32::from(cfg.cauchy_q8) << 4,
     };
     let mut s = State::default();
-    if cfg.turn_search > 0 {
+    if cfg.search_reads(n) > 0 {
         s.dth = turn_search(&frame, cfg, win_th);
     }
     let mut at_edge = false;
@@ -346,8 +348,14 @@ pub fn match_scan(
         let lever_k = frame.lever.saturating_sub(u32::from(level));
         let cost = cfg.pass_reads(level, n);
         np.radius = cfg.radius_at(level);
+        // A coarse pass leaves room for one pass at the grid's level: a match the budget cuts
+        // short still ends on the grid (the coarse levels only bring it into reach).
+        let reserve = if level > 0 { cfg.pass_reads(0, n) } else { 0 };
         for _ in 0..cfg.iterations {
-            if reads + cost > budget {
+            if reads + cost + reserve > budget {
+                if level > 0 {
+                    continue 'levels;
+                }
                 break 'levels;
             }
             reads += cost;
@@ -463,7 +471,7 @@ pub(crate) fn heading_search(
     let to_sub = |mm: i64| (mm * i64::from(SUB)).div_euclid(cell);
     let gx0 = to_sub(i64::from(predicted.x_mm) - i64::from(ox));
     let gy0 = to_sub(i64::from(predicted.y_mm) - i64::from(oy));
-    if cfg.turn_search == 0 || gx0.abs() > MAX_POSE_SUB || gy0.abs() > MAX_POSE_SUB {
+    if cfg.search_reads(points.len()) == 0 || gx0.abs() > MAX_POSE_SUB || gy0.abs() > MAX_POSE_SUB {
         return 0;
     }
     let frame = Frame {

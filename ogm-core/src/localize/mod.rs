@@ -84,9 +84,12 @@
 //! `(2r + 1)² · 4^k · ⌈n / s⌉` cells for a window radius `r` and a point stride `s`
 //! ([`MatchConfig::radius_at`], [`MatchConfig::stride_at`], [`MatchConfig::pass_reads`]); the quality probes read `14 n`
 //! ([`MatchConfig::probe_reads`]), the heading search `4 · (2·turn_search + 1) · ⌈n / stride_at(1)⌉`
-//! ([`MatchConfig::search_reads`]). [`MatchConfig::budget_reads`] caps the passes: one that does
-//! not fit in what is left is not started (the match then ends at the level it reached), so a
-//! call reads at most `budget_reads + 14 n` cells; [`MatchConfig::max_reads`] gives the bound for
+//! ([`MatchConfig::search_reads`]). [`MatchConfig::budget_reads`] caps the search and the
+//! passes together: the search is skipped if it alone exceeds the budget, a pass that does not
+//! fit in what is left is not started, and a coarse pass also leaves room for one pass on the
+//! grid (a match the budget cuts short skips coarse iterations, not the final level). So a call
+//! reads at most `budget_reads + 14 n` cells whatever the input; [`MatchConfig::max_reads`] gives
+//! the bound for
 //! `n` points and [`Work::reads`] what a call used. Per read the M4 spends a few instructions,
 //! per point and pass a few tens (`NOTES-39.md` has the measured instructions per scan).
 //!
@@ -200,7 +203,8 @@ pub struct MatchConfig {
     /// Turning the points by the probe angle must lose at least this share (‰) of the score,
     /// else [`Verdict::AmbiguousRotation`].
     pub min_turn_drop_permille: u16,
-    /// Cell reads allowed per call (see the module docs, "Work bound"); 0 = no limit.
+    /// Cell reads allowed per call for the heading search and the Gauss–Newton passes (see the
+    /// module docs, "Work bound"); 0 = no limit.
     pub budget_reads: u32,
 }
 
@@ -210,10 +214,10 @@ impl Default for MatchConfig {
         MatchConfig {
             min_range_mm: 100,
             max_range_mm: 20_000,
-            min_spacing_mm: 30,
+            min_spacing_mm: 45,
             floor: LogOdds(0),
             occupied: LogOdds(2048),
-            levels: 2,
+            levels: 1,
             radius: 2,
             coarse_radius: 2,
             coarse_thin: 1,
@@ -232,7 +236,7 @@ impl Default for MatchConfig {
             max_contradicted_permille: 700,
             min_drop_permille: 150,
             min_turn_drop_permille: 150,
-            budget_reads: 0,
+            budget_reads: 50_000,
         }
     }
 }
@@ -281,12 +285,19 @@ impl MatchConfig {
     }
 
     /// Cell reads of the heading search over `n` points: `2·turn_search + 1` headings, every
-    /// `stride_at(1)`-th point, four cells each.
+    /// `stride_at(1)`-th point, four cells each; 0 when it is off or does not fit the budget
+    /// (it is then skipped).
     pub fn search_reads(&self, n: usize) -> u64 {
         if self.turn_search == 0 {
             return 0;
         }
-        (2 * u64::from(self.turn_search) + 1) * 4 * n.div_ceil(self.stride_at(1)) as u64
+        let n = n.min(MAX_POINTS);
+        let reads =
+            (2 * u64::from(self.turn_search) + 1) * 4 * n.div_ceil(self.stride_at(1)) as u64;
+        if self.budget_reads != 0 && reads > u64::from(self.budget_reads) {
+            return 0;
+        }
+        reads
     }
 
     /// Cell reads of the quality probes over `n` points (the score at the pose, four
@@ -299,12 +310,13 @@ impl MatchConfig {
     /// budget if that is smaller, plus the probes.
     pub fn max_reads(&self, n: usize) -> u64 {
         let n = n.min(MAX_POINTS);
-        let mut passes: u64 = (0..=self.levels.min(MAX_LEVEL))
+        let passes: u64 = (0..=self.levels.min(MAX_LEVEL))
             .map(|k| u64::from(self.iterations) * self.pass_reads(k, n))
             .sum();
+        let mut work = passes + self.search_reads(n);
         if self.budget_reads != 0 {
-            passes = passes.min(u64::from(self.budget_reads));
+            work = work.min(u64::from(self.budget_reads));
         }
-        passes + self.search_reads(n) + MatchConfig::probe_reads(n)
+        work + MatchConfig::probe_reads(n)
     }
 }

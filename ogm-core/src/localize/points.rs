@@ -44,7 +44,12 @@ fn point_of(beam: &Beam, cell_mm: u32, cfg: &MatchConfig) -> Option<ScanPoint> {
         return None;
     }
     // Range in sub-cells; `cell_mm ≥ 1` (a geometry's cells are never empty, `max` makes sure).
-    let q = (i64::from(r) * i64::from(SUB)) / i64::from(cell_mm.max(1));
+    let q = if r < 1 << 23 {
+        // r · 256 < 2^31: a 32-bit division (a 64-bit one is a library call on the M4).
+        i64::from((r << 8) / cell_mm.max(1))
+    } else {
+        (i64::from(r) * i64::from(SUB)) / i64::from(cell_mm.max(1))
+    };
     if q >= MAX_POINT_SUB {
         return None;
     }

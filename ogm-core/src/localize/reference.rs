@@ -245,8 +245,14 @@ pub fn match_scan_f64(
         let lev = f64::from(1u32 << lever_k);
         let cost = cfg.pass_reads(level, n);
         np.radius = cfg.radius_at(level);
+        // A coarse pass leaves room for one pass at the grid's level: a match the budget cuts
+        // short still ends on the grid (the coarse levels only bring it into reach).
+        let reserve = if level > 0 { cfg.pass_reads(0, n) } else { 0 };
         for _ in 0..cfg.iterations {
-            if reads + cost > budget {
+            if reads + cost + reserve > budget {
+                if level > 0 {
+                    continue 'levels;
+                }
                 break 'levels;
             }
             reads += cost;
