@@ -8,7 +8,7 @@ COUNTS is the per-address dump of `QEMU_PROFILE_DUMP=COUNTS scripts/qemu-profile
 comma-separated list of substrings of (mangled) symbol names; every address inside those
 symbols is attributed to its chain of inlined frames (llvm-addr2line -f -i), outermost first,
 cut to DEPTH frames (default 2), and the chains are printed by instructions executed. E.g. the
-firmware's per-scan step (docs/benchmarks.md, "The per-scan step by phase"):
+firmware's per-scan step (docs/performance.md, "The per-scan step on the Cortex-M4"):
 
   scripts/qemu-phases.py ELF COUNTS process_scan,insert_and_seed,RunWalk4mark,mark_cells,scan_box 2
 """

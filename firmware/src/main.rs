@@ -61,7 +61,7 @@ fn main() -> ! {
         ogm_firmware::bench_match::run(&mut b.grid[..], &mut b.marks[..], b.width, b.height, clock)
     };
     #[cfg(not(feature = "bench-match"))]
-    let code = ogm_firmware::app::run(memory, link, lidar, clock);
+    let code = ogm_firmware::run(memory, link, lidar, clock);
     let stack = board::stack_usage();
     info!(
         "stack: {=u32} of {=u32} bytes used since the settings were applied (high-water mark)",

@@ -51,15 +51,14 @@ pub fn run<W: Write, S: Storage, P: Platform>(
     link: &mut W,
     platform: &mut P,
 ) -> i32 {
-    // `RunConfig::robot` as a constant (no floating-point code).
-    let config = RunConfig::robot_at_paper_sigma(
-        (-6400, -6400),
-        MAX_RANGE_MM,
-        1,
-        Budget::Fixed {
+    // The robot's settings, a constant (no floating-point code).
+    let config = RunConfig::ROBOT
+        .with_origin_mm(-6400, -6400)
+        .with_max_range_mm(MAX_RANGE_MM)
+        .with_seed(1)
+        .with_budget(Budget::Fixed {
             updates: UPDATES_PER_SCAN,
-        },
-    );
+        });
     app.configure(link, platform, config);
     for (k, p) in POSES.iter().enumerate() {
         room_scan(p, app.scan);

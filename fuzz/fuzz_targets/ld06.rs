@@ -1,13 +1,12 @@
 //! The LD06 parser (`ogm_core::lidar::ld06`): arbitrary bytes through `Ld06Parser` (in chunks whose size
-//! the input picks), `Packet::parse` on every 47-byte window and `Ld06Reader` (the firmware's
-//! `RangeSensor`) over the same bytes. Invariants: nothing panics; every accepted packet
+//! the input picks), `Packet::parse` on every 47-byte window and `Ld06Reader` (the blocking
+//! reader) over the same bytes. Invariants: nothing panics; every accepted packet
 //! re-encodes to the bytes it came from; the counters account for every completed packet; a
 //! scan never holds more beams than its buffer.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
 use ogm_core::lidar::ld06::{Ld06Parser, Ld06Reader, Packet, PACKET_LEN, POINTS};
-use ogm_core::lidar::source::RangeSensor;
 use ogm_core::ScanBuf;
 
 fuzz_target!(|data: &[u8]| {

@@ -3,8 +3,8 @@
 //! included —, `ScanEnd`, `Finish`), LD06 packets (any distance, zero = no return, more than a
 //! scan buffer holds), raw bytes and flipped bits, through `ogm_core::lidar::link::LinkRx` into the
 //! firmware's engine, `ogm_core::session::Session`: `insert` (mapper, seeding, ray store, cache
-//! refresh), sampler steps, and the tile-box computation of the firmware's `mark_dirty`
-//! (`Pose::beam_end` → `GridGeometry::cell_of_point`). A 64 × 64 grid and small buffers keep
+//! refresh), sampler steps, and the box of changed cells the firmware's `mark_dirty` takes
+//! (`Inserted::changed_box`). A 64 × 64 grid and small buffers keep
 //! an input fast. Invariants: nothing panics; log-odds stay within the clamp; the sampler's
 //! counts never exceed its samples. The same bytes also go through the robot loop's lidar
 //! path (`ogm_core::lidar::ld06::Ld06Parser` → `ogm_core::lidar::turn::Turns`, placed by the `Pose` frames
@@ -232,14 +232,14 @@ fuzz_target!(|items: Vec<Item>| {
                 updates,
             } => frame(
                 &mut bytes,
-                &HostMsg::Config(RunConfig::paper(
-                    (i32::from(origin_x_mm), i32::from(origin_y_mm)),
-                    u32::from(max_range_mm),
-                    1,
-                    Budget::Fixed {
-                        updates: u32::from(updates),
-                    },
-                )),
+                &HostMsg::Config(
+                    RunConfig::PAPER
+                        .with_origin_mm(i32::from(origin_x_mm), i32::from(origin_y_mm))
+                        .with_max_range_mm(u32::from(max_range_mm))
+                        .with_budget(Budget::Fixed {
+                            updates: u32::from(updates),
+                        }),
+                ),
             ),
             Item::Start {
                 seq,
@@ -376,18 +376,15 @@ fuzz_target!(|items: Vec<Item>| {
                 return;
             };
             scans += 1;
-            let _ = m.insert(&pose, beams);
+            let inserted = m.insert(&pose, beams);
             if let Budget::Fixed { updates } = m.config().budget {
                 m.step(updates.min(256));
             }
             // The firmware's `mark_dirty` box (the pose and every beam end).
-            let (lo, hi) = ogm_core::map::mapper::scan_box(
-                m.mapper().grid().geometry(),
-                m.mapper().config(),
-                &pose,
-                beams,
-            );
-            assert!(lo.x <= hi.x && lo.y <= hi.y);
+            if let Ok(inserted) = inserted {
+                let (lo, hi) = inserted.changed_box();
+                assert!(lo.x <= hi.x && lo.y <= hi.y);
+            }
         }
         Step::Host(HostMsg::Pose { t_us, pose }) => {
             let _ = turns.push_pose(t_us, pose, &mut turn_buf, |t| {

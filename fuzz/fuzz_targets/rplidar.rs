@@ -1,6 +1,6 @@
 //! The RPLIDAR parser (`ogm_core::lidar::rplidar`): arbitrary bytes through `RplidarParser` (in chunks
 //! whose size the input picks), `Node::parse` / `Descriptor::parse` on every window,
-//! `RplidarReader` (a `RangeSensor`) over the same bytes, and the encoder on beams made from the
+//! `RplidarReader` over the same bytes, and the encoder on beams made from the
 //! bytes. Invariants: nothing panics; every accepted node or descriptor re-encodes to the bytes
 //! it came from; every input byte is delivered, skipped or held back (and held back < 20); the
 //! counters account for every event; a scan never holds more beams than its buffer; encoded
@@ -13,7 +13,6 @@ use ogm_core::lidar::rplidar::{
     RplidarParser, RplidarReader, DESCRIPTOR_LEN, HEALTH_LEN, INFO_LEN, MAX_RANGE_MM, NODE_LEN,
     SAMPLERATE_LEN, TURN_Q6,
 };
-use ogm_core::lidar::source::RangeSensor;
 use ogm_core::{Angle, Beam, Range, ScanBuf};
 
 fuzz_target!(|data: &[u8]| {

@@ -64,6 +64,10 @@ enum Commands {
         /// Use the firmware's compile-time buffer sizes (ray store, local list, u8 marginals).
         #[arg(long)]
         firmware_bounds: bool,
+        /// Range noise σ (cells) of the simulated lidar, which the methods are told (default:
+        /// the paper's 3).
+        #[arg(long)]
+        sigma_cells: Option<f64>,
     },
     /// The paper's hardware protocol on a real CARMEN log (benchmark, experiments 1-3).
     EvalLog(host_sim::eval::eval_log::EvalLogArgs),
@@ -127,6 +131,7 @@ fn eval_sim(
     sweeps: u32,
     burn_in: u32,
     firmware_bounds: bool,
+    sigma_cells: Option<f64>,
 ) -> anyhow::Result<()> {
     use host_sim::eval::sampling::{SamplingConfig, Variant};
     let mut variants = Vec::new();
@@ -152,11 +157,20 @@ fn eval_sim(
     if firmware_bounds {
         sampling = host_sim::eval::eval_sim::with_firmware_bounds(sampling);
     }
+    let mut sim = host_sim::sim::SimConfig::default();
+    if let Some(s) = sigma_cells {
+        anyhow::ensure!(
+            s.is_finite() && s > 0.0 && s <= 100.0,
+            "--sigma-cells must be a number of cells above 0 and at most 100, not {s}"
+        );
+        sim.lidar.sigma_cells = s;
+        sampling.sigma_cells = s;
+    }
     let cfg = host_sim::eval::eval_sim::EvalConfig {
         runs,
         seed,
         variants,
-        sim: Default::default(),
+        sim,
         sampling,
         baselines,
         baseline: host_sim::eval::baselines::BaselineConfig {
@@ -188,6 +202,7 @@ fn main() -> ExitCode {
             sweeps,
             burn_in,
             firmware_bounds,
+            sigma_cells,
         } => eval_sim(
             &maps,
             runs,
@@ -197,6 +212,7 @@ fn main() -> ExitCode {
             sweeps,
             burn_in,
             firmware_bounds,
+            sigma_cells,
         ),
         Commands::TrainPrior {
             corpus,

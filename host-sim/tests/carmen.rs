@@ -15,7 +15,7 @@ use host_sim::sim::carmen::{
 };
 use host_sim::sim::explore::ScanRecord;
 use host_sim::sim::{new_mapper, probabilities};
-use ogm_core::{Angle, Beam, MapperConfig, Pose, Range, RangeSensor, ScanBuf};
+use ogm_core::{Angle, Beam, MapperConfig, Pose, Range, ScanBuf};
 use ogm_field::export::export_world;
 use ogm_field::world::{load_world, probabilities_to_world, Truth};
 

@@ -61,7 +61,11 @@ fn errors(events: &[DeviceEvent]) -> Vec<(ErrorCode, u32)> {
 }
 
 fn config() -> RunConfig {
-    RunConfig::robot((-6400, -6400), 8000, 7, Budget::Fixed { updates: 200 })
+    RunConfig::ROBOT
+        .with_origin_mm(-6400, -6400)
+        .with_max_range_mm(8000)
+        .with_seed(7)
+        .with_budget(Budget::Fixed { updates: 200 })
 }
 
 /// A scan of a 4 m square room seen from `pose`: 360 beams, as LD06 packets in frames.
@@ -211,7 +215,7 @@ fn a_run_streams_exactly_the_engine_map() {
     assert_eq!(reports.len(), 3);
     assert!(reports
         .iter()
-        .all(|r| r.beams == 360 && r.sampler_updates == 200 && r.cells_hit > 0));
+        .all(|r| r.beams == 360 && r.sampler_updates == 200 && r.mapper.cells_hit > 0));
     let mut map = StreamedMap::new(w, h, usize::from(FW.tile_edge));
     for e in &events {
         if let DeviceEvent::Tile(t) = e {
@@ -347,12 +351,12 @@ fn a_standing_robot_maps_its_lidar_uart_like_tunnelled_scans() {
 #[test]
 fn the_stored_settings_are_the_robot_settings() {
     use ogm_firmware::app::STORED_CONFIG;
-    let robot = RunConfig::robot(
-        (STORED_CONFIG.origin_x_mm, STORED_CONFIG.origin_y_mm),
-        STORED_CONFIG.max_range_mm,
-        STORED_CONFIG.seed,
-        STORED_CONFIG.budget,
-    );
+    let robot = RunConfig::ROBOT
+        .with_origin_mm(STORED_CONFIG.origin_x_mm, STORED_CONFIG.origin_y_mm)
+        .with_max_range_mm(STORED_CONFIG.max_range_mm)
+        .with_seed(STORED_CONFIG.seed)
+        .with_budget(STORED_CONFIG.budget)
+        .with_noise_matched(3.0);
     assert_eq!(
         STORED_CONFIG,
         RunConfig {

@@ -15,15 +15,16 @@ fn scan(x: f64, y: f64) -> Vec<Beam> {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let config = RunConfig::robot((-3200, -3200), 8000, 1, Budget::Fixed { updates: 5000 });
+    let config = RunConfig::ROBOT
+        .with_origin_mm(-3200, -3200)
+        .with_max_range_mm(8000)
+        .with_budget(Budget::Fixed { updates: 5000 });
     let mut map = Session::new(config, Owned::<u8>::buffers(&Sizes::grid(128, 128)))?;
     for k in 0..5 {
         let (x_mm, y_mm) = (600 * k - 1200, 400 * k - 1500);
-        let stats = map.insert(
-            &Pose::new(x_mm, y_mm, Angle(0)),
-            &scan(x_mm.into(), y_mm.into()),
-        )?;
-        let (hit, updates) = (stats.cells_hit, map.step(5000)); // step: improve the map
+        let beams = scan(x_mm.into(), y_mm.into());
+        let inserted = map.insert(&Pose::new(x_mm, y_mm, Angle(0)), &beams)?;
+        let (hit, updates) = (inserted.stats.cells_hit, map.step(5000)); // step: improve the map
         println!("({x_mm}, {y_mm}) mm: {hit} cells hit, {updates} sampler updates");
     }
     let cell = |i: usize| match (map.log_odds()[i].raw(), map.marginal(i)) {

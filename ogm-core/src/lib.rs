@@ -11,10 +11,10 @@
 //! * [`wire`] — the host link's frames and messages and the map stream's tile codec;
 //! * [`map`] — online log-odds mapping: grid, rays, inverse sensor models, the mapper;
 //! * [`sampler`] — the patch prior, forward model, ray store and the patch Gibbs sampler;
-//! * [`lidar`] — LD06 and RPLIDAR parsers, the robot's receive link, turns and pose tracking,
-//!   and the traits through which scans and poses enter;
+//! * [`lidar`] — LD06 and RPLIDAR parsers, the robot's receive link, turns and pose tracking:
+//!   the one way scans and poses enter (bytes in, sans-IO; [`lidar::source`] says why);
 //! * [`session`] — the engine: mapper, ray store and sampler behind `insert` / `step`;
-//! * [`reference`] — f64 reference implementations for tests (feature `reference`).
+//! * [`mod@reference`] — f64 reference implementations for tests (feature `reference`).
 //!
 //! ## Panics
 //! Nothing in this crate panics on input values. Slices are accessed with `get`, arithmetic on
@@ -60,10 +60,9 @@ pub mod reference;
 
 pub use config::RunConfig;
 pub use error::{Error, Result};
-pub use lidar::source::{PoseSource, RangeSensor};
 pub use map::grid::LogOddsGrid;
 pub use map::mapper::{Mapper, MapperConfig, ScanStats};
-pub use session::{Session, SessionError, Sizes};
+pub use session::{Inserted, Session, SessionError, Sizes};
 pub use types::angle::Angle;
 pub use types::fixed::{Clamp, LogOdds};
 pub use types::geometry::{CellCoord, GridGeometry, Pose};

@@ -7,8 +7,7 @@ use ogm_core::lidar::ld06::{encode_scan, Ld06Parser, Packet, Point, PACKET_LEN, 
 use ogm_core::lidar::link::{LinkError, LinkRx, Step};
 use ogm_core::map::mapper::marks_len;
 use ogm_core::sampler::gibbs::{block_words, BorderPrior, Buffers, Gibbs, LocalRay, SamplerConfig};
-use ogm_core::sampler::ray_store::{RayStore, StoredRay, StoredScan};
-use ogm_core::session::pipeline::insert_and_seed;
+use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::wire::{self, HostMsg, LinkCounters, MAX_HOST_FRAME};
 use ogm_core::{Angle, Beam, GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose};
 use ogm_core::{Range, ScanBuf};
@@ -290,38 +289,18 @@ fn mapper(min_range_mm: u32) -> (Mapper<Vec<LogOdds>, Vec<u32>>, GridGeometry) {
 
 #[test]
 fn pose_outside_the_map_is_clipped() {
-    let cfg = RunConfig::paper((0, 0), 12_000, 1, Budget::Fixed { updates: 50 });
-    let g = cfg.geometry(64, 64).unwrap();
-    let grid = LogOddsGrid::new(g, vec![LogOdds::ZERO; g.len()]).unwrap();
-    let mut m = Mapper::new(
-        grid,
-        vec![0; marks_len(g.len())],
-        cfg.mapper_config().unwrap(),
-    )
-    .unwrap();
-    let mut store = RayStore::new(
-        g,
-        cfg.max_range_mm,
-        0,
-        vec![StoredScan::default(); 4],
-        vec![StoredRay::default(); 256],
-    )
-    .unwrap();
-    let sc = cfg.sampler_config();
-    let mut gibbs = Gibbs::new(
-        g,
-        BorderPrior::default(),
-        cfg.forward_model().unwrap(),
-        sc,
-        Buffers {
-            sample: vec![0u32; g.len().div_ceil(32)],
-            counts: vec![0u8; g.len()],
-            local: vec![LocalRay::default(); 32],
-            blocks: vec![0u32; block_words(32, sc.block_grid)],
-        },
-    )
-    .unwrap();
-    gibbs.reset(m.grid().cells(), &mut store).unwrap();
+    let cfg = RunConfig::PAPER
+        .with_max_range_mm(12_000)
+        .with_budget(Budget::Fixed { updates: 50 });
+    let sizes = Sizes {
+        width: 64,
+        height: 64,
+        rays: 256,
+        scans: 4,
+        local: 32,
+    };
+    let mut session = Session::new(cfg, Owned::<u8>::buffers(&sizes)).unwrap();
+    let cells = session.log_odds().len();
     let beams: Vec<Beam> = (0..360u32)
         .map(|i| Beam {
             angle: Angle::from_centidegrees(i * 100),
@@ -347,25 +326,26 @@ fn pose_outside_the_map_is_clipped() {
             y_mm: y,
             heading: Angle(12_345),
         };
-        let (s, _) = insert_and_seed(&mut m, &mut store, &mut gibbs, &pose, &beams).unwrap();
-        assert!(s.cells_hit + s.cells_freed <= g.len() as u32);
-        gibbs.step(&mut store, m.grid().cells(), 50);
+        let s = session.insert(&pose, &beams).unwrap().stats;
+        assert!(s.cells_hit + s.cells_freed <= cells as u32);
+        session.step(50);
     }
     let clamp = cfg.mapper_config().unwrap().clamp;
     assert!(
-        m.grid().cells().iter().any(|l| l.0 != 0),
+        session.log_odds().iter().any(|l| l.0 != 0),
         "rays from just outside reach in"
     );
-    assert!(m
-        .grid()
-        .cells()
+    assert!(session
+        .log_odds()
         .iter()
         .all(|l| *l >= clamp.min() && *l <= clamp.max()));
 }
 
 #[test]
 fn bad_settings_are_rejected_with_an_error() {
-    let good = RunConfig::paper((0, 0), 12_000, 1, Budget::Fixed { updates: 50 });
+    let good = RunConfig::PAPER
+        .with_max_range_mm(12_000)
+        .with_budget(Budget::Fixed { updates: 50 });
     assert!(good.geometry(256, 256).is_ok() && good.forward_model().is_ok());
     // Zero cell size: no geometry.
     let c = RunConfig { cell_mm: 0, ..good };

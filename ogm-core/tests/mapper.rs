@@ -58,6 +58,40 @@ fn one_beam_frees_the_ray_and_hits_its_end() {
     }
 }
 
+/// The far edge (`InverseSensorModel::with_far_edge`): every band cell's offset moves on by
+/// its share of half a step, and a band of σ → 0 with all of it is the beam model exactly
+/// (without it, the reading's cell gets only Φ(1.5) of the occupied update).
+#[test]
+fn far_edge_shifts_the_band_and_its_limit_is_the_beam_model() {
+    use ogm_core::map::sensor_model::face_band_delta;
+    let g = geometry(40, 5);
+    let scan = |model: InverseSensorModel| {
+        let mut cfg = MapperConfig::new(5_000);
+        cfg.model = model;
+        let mut m = mapper(g, cfg);
+        m.insert_scan(&pose(2, 2, 0.0), &[beam(0.0, Range::Hit(1_500))])
+            .unwrap();
+        (0..40)
+            .map(|x| m.grid().get(at(x, 2)).unwrap().0)
+            .collect::<Vec<i16>>()
+    };
+    // σ = 2 cells (4 eighths a cell); half the half step: every offset 1 eighth further on.
+    let band = InverseSensorModel::hahnel_face_band(200).unwrap();
+    let shifted = scan(band.with_far_edge(128).unwrap());
+    for x in 14..=20i32 {
+        let want = face_band_delta(1024, -1024, (4 * (x - 17) + 1) as i8);
+        assert_eq!(i32::from(shifted[x as usize]), want, "x = {x}");
+    }
+    assert_eq!(scan(band.with_far_edge(0).unwrap()), scan(band));
+    // σ = 2 mm: the band (±3 mm) is the reading's cell alone.
+    let beam_model = scan(InverseSensorModel::hahnel());
+    let narrow = InverseSensorModel::hahnel_face_band(2).unwrap();
+    assert_eq!(scan(narrow.with_far_edge(256).unwrap()), beam_model);
+    let at_sample_point = scan(narrow);
+    assert_eq!(at_sample_point[17], 887);
+    assert_eq!(beam_model[17], 1024);
+}
+
 #[test]
 fn face_band_spreads_a_reading_over_its_band() {
     use ogm_core::map::sensor_model::face_band_delta;
@@ -312,9 +346,12 @@ proptest! {
     /// LSB per scan).
     #[test]
     fn face_band_matches_reference(scans in prop::collection::vec(scan_strategy(), 1..40),
-                                   sigma_mm in 1u32..600, free_q8 in 1u16..=256) {
+                                   sigma_mm in 1u32..600, free_q8 in 1u16..=256,
+                                   far_q8 in prop_oneof![Just(0u16), 0u16..=256]) {
         let mut cfg = MapperConfig::new(3_000);
         cfg.model = InverseSensorModel::hahnel_face_band(sigma_mm)
+            .unwrap()
+            .with_far_edge(far_q8)
             .unwrap()
             .with_free_scale(free_q8)
             .unwrap();

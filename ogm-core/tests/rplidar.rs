@@ -13,7 +13,7 @@ use ogm_core::lidar::rplidar::{
     RplidarReader, DESCRIPTOR_LEN, HEALTH_LEN, INFO_LEN, LOCK_NODES, MAX_LOCK_STEP_Q6,
     MAX_RANGE_MM, NODE_LEN, SAMPLERATE_LEN, SCAN_DESCRIPTOR, TURN_Q6,
 };
-use ogm_core::lidar::source::{RangeSensor, ReadError};
+use ogm_core::lidar::source::ReadError;
 use ogm_core::{Angle, Beam, Range, ScanBuf};
 use proptest::prelude::*;
 

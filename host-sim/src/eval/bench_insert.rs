@@ -1,6 +1,6 @@
 //! `host-sim bench-insert`: online insertion throughput of `ogm_core::Mapper` on real CARMEN
 //! logs, in the unit of the MRPT/OctoMap peer (`../shared/peers/insert_bench.cpp`), so the two
-//! can be run one after the other on the same logs and compared as a ratio (docs/insertion.md).
+//! can be run one after the other on the same logs and compared as a ratio (docs/performance.md).
 //!
 //! * **Scans.** Every `FLASER`/`ROBOTLASER1` scan of each log ([`crate::sim::carmen`]), with the
 //!   maximum range fixed at `--max-range` (default [`PEER_USABLE_RANGE_M`], the peer's 49.9 m):

@@ -6,8 +6,8 @@
 //!   the cell size the patch prior was learnt at; the paper used 2 cm for the Intel lab).
 //! * **Mapper.** `ogm_core`'s Hähnel mapper ([`crate::sim::new_mapper`]) with maximum range
 //!   `min(sensor range, --range-cap)`: a hit at or beyond it frees cells up to the cap and marks
-//!   nothing, like a no-return. Scans go through `ogm_core::session::pipeline::map_next_scan` with a
-//!   [`ReplaySensor`] over the recorded scans — the trait path the firmware uses.
+//!   nothing, like a no-return. A [`ReplaySensor`] reads the recorded scans into the engine's
+//!   scan buffer, one [`crate::sim::insert_scan`] each.
 //! * **Benchmark.** Traditional OGM on all of the log's scans and beams; a cell some
 //!   measurement updated is occupied iff p > [`BENCHMARK_THRESHOLD`] (0.20; see
 //!   [`benchmark_truth`] for why strictly), else free; cells no measurement updated are unknown
@@ -41,20 +41,20 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, ensure, Context};
 use ogm_core::map::mapper::marks_len;
-use ogm_core::session::pipeline::map_next_scan;
-use ogm_core::{GridGeometry, LogOdds, MapperConfig, Pose, Range, RangeSensor, ScanBuf};
+use ogm_core::{GridGeometry, LogOdds, MapperConfig, Pose, Range, ScanBuf};
 use ogm_field::world::load::{DEFAULT_FREE_THRESH, DEFAULT_OCCUPIED_THRESH};
 use ogm_field::world::{Truth, World};
 use serde::{Deserialize, Serialize};
 
 use crate::eval::baselines::{self, BaselineConfig, Method as BaselineMethod, SensorModel};
 use crate::eval::metrics::{mask_within, PrAccumulator, Summary};
+use crate::eval::noise::MIN_SIGMA_CELLS;
 use crate::eval::render;
 use crate::eval::report::{MapInfo, Report};
 use crate::eval::sampling::{run_sampler, SamplingConfig, Variant};
 use crate::sim::carmen::{read_log, LogInfo, ReadOptions};
 use crate::sim::explore::ScanRecord;
-use crate::sim::{mark_observed, new_mapper, probabilities, KnownPose, MAX_BEAMS};
+use crate::sim::{insert_scan, mark_observed, new_mapper, probabilities, MAX_BEAMS};
 
 /// The benchmark threshold of the paper: occupied iff p > 0.20.
 pub const BENCHMARK_THRESHOLD: f64 = 0.20;
@@ -146,9 +146,13 @@ pub struct EvalLogArgs {
     /// Also write every map as a ROS map_server map (`.yaml` + trinary `.pgm`).
     #[arg(long)]
     pub export_ros: bool,
+    /// Seeded perturbation of the experiments' scans ([`crate::eval::perturb`]; the benchmark
+    /// is made from the unperturbed log).
+    #[command(flatten)]
+    pub perturb: crate::eval::perturb::PerturbArgs,
 }
 
-/// A [`RangeSensor`] that replays recorded scans in order; `Err(EndOfLog)` after the last.
+/// Replays recorded scans in order, like a sensor; `Err(EndOfLog)` after the last.
 #[derive(Clone, Debug)]
 pub struct ReplaySensor<'a> {
     scans: &'a [ScanRecord],
@@ -165,15 +169,16 @@ impl<'a> ReplaySensor<'a> {
         ReplaySensor { scans, next: 0 }
     }
 
-    /// The pose of the scan that the next [`RangeSensor::read_scan`] returns.
+    /// The pose of the scan that the next [`ReplaySensor::read_scan`] returns.
     pub fn next_pose(&self) -> Option<Pose> {
         self.scans.get(self.next).map(|s| s.pose)
     }
 }
 
-impl RangeSensor for ReplaySensor<'_> {
-    type Error = EndOfLog;
-    fn read_scan<const N: usize>(&mut self, scan: &mut ScanBuf<N>) -> Result<(), EndOfLog> {
+impl ReplaySensor<'_> {
+    /// The next scan into `scan` (cleared first; beams beyond its capacity are counted as its
+    /// overflow).
+    pub fn read_scan<const N: usize>(&mut self, scan: &mut ScanBuf<N>) -> Result<(), EndOfLog> {
         let s = self.scans.get(self.next).ok_or(EndOfLog)?;
         self.next += 1;
         scan.clear();
@@ -197,7 +202,7 @@ pub struct Mapped {
     pub seconds: f64,
 }
 
-/// Maps `scans` online through `ogm_core::session::pipeline::map_next_scan`.
+/// Maps `scans` online, one [`crate::sim::insert_scan`] each.
 pub fn map_scans(
     geometry: GridGeometry,
     config: MapperConfig,
@@ -211,10 +216,11 @@ pub fn map_scans(
     let mut marks = vec![0u32; marks_len(geometry.len())];
     let mut overflowed = 0u64;
     while let Some(pose) = sensor.next_pose() {
-        let mut poses = KnownPose(pose);
-        let step = map_next_scan(&mut sensor, &mut poses, &mut *buf, &mut mapper)
-            .map_err(|e| anyhow!("mapping failed: {e:?}"))?;
-        overflowed += u64::from(step.beams_overflowed);
+        sensor
+            .read_scan(&mut *buf)
+            .map_err(|_| anyhow!("the log ended before its last pose"))?;
+        insert_scan(&mut mapper, &pose, &mut *buf)?;
+        overflowed += u64::from(buf.overflow());
         mark_observed(
             &geometry,
             &config,
@@ -545,6 +551,15 @@ pub struct ExperimentReport {
     /// The forward model's σ (cells) the methods used.
     #[serde(default)]
     pub sigma_cells: f64,
+    /// The sensor's σ (cells) and share of hits without evidence the robot's settings were
+    /// made for (`RunConfig::with_sensor`; the estimate's [`NoiseEstimate::sensor`]).
+    ///
+    /// [`NoiseEstimate::sensor`]: crate::eval::noise::NoiseEstimate::sensor
+    #[serde(default)]
+    pub sensor: (f64, f64),
+    /// The perturbation of the experiment's scans, if any ([`crate::eval::perturb`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub perturbation: Option<crate::eval::perturb::PerturbStats>,
     /// Methods (`methods`, `methods_near_mapped`, ...), as in `eval-sim`.
     #[serde(flatten)]
     pub report: Report,
@@ -586,6 +601,7 @@ pub fn run(args: &EvalLogArgs) -> anyhow::Result<()> {
         None => vec![1, 2, 3],
     };
     let cfg = MethodsConfig::new(&args.map)?;
+    args.perturb.validate()?;
     let mut reports = Vec::new();
     for log in &logs {
         let dir = if logs.len() == 1 {
@@ -639,6 +655,15 @@ impl MethodsConfig {
         if let SensorModel::Gaussian { sigma_cells: s, .. } = &mut c.baseline.model {
             *s = sigma_cells;
         }
+        c
+    }
+
+    /// These settings with the robot's made for a sensor of σ `sensor.0` cells and a share
+    /// `sensor.1` of hits without evidence ([`SamplingConfig::sensor`]).
+    pub fn with_sensor(&self, sensor: (f64, f64)) -> MethodsConfig {
+        let mut c = self.clone();
+        c.sampling.sensor_sigma_cells = Some(sensor.0);
+        c.sampling.outlier_share = sensor.1;
         c
     }
 
@@ -797,10 +822,25 @@ fn eval_one(
     if args.export_ros {
         ogm_field::export::export_world(&out.join("ros").join("benchmark.yaml"), &world)?;
     }
+    // The experiments read the perturbed log (if asked); the benchmark above the unperturbed.
+    let (perturbed, perturbation) = if args.perturb.is_active() {
+        let (p, st) = crate::eval::perturb::perturb(
+            &setup.scans,
+            &args.perturb,
+            g.cell_mm(),
+            // Far outliers reach the sensor's own range (beyond the mapping cap they free space
+            // up to it, like a real far reading).
+            (setup.info.max_range_m() * 1000.0).clamp(0.0, f64::from(u32::MAX)) as u32,
+        );
+        eprintln!("{}: perturbed: {st:?}", setup.name);
+        (Some(p), Some(st))
+    } else {
+        (None, None)
+    };
     let mut exps = Vec::new();
     for &id in experiments {
         let e = Experiment::new(id)?;
-        let scans = e.select(&setup.scans);
+        let scans = e.select(perturbed.as_deref().unwrap_or(&setup.scans));
         let t = map_scans(g, setup.mapper, &scans)?;
         let near = mask_within(&t.observed, w, h, NEAR_MAPPED_CELLS);
         let mut maps: BTreeMap<String, Vec<f64>> = BTreeMap::new();
@@ -812,17 +852,23 @@ fn eval_one(
         let mut graph = None;
         // The sensor's noise, from this experiment's own data.
         let noise = crate::eval::noise::estimate(&g, &setup.mapper, &scans, &t.map);
+        // The forward models read the MAD's σ; the robot's settings the mixture's σ and τ.
         let cfg = &match (cfg.estimate_sigma, noise) {
-            (true, Some(n)) => cfg.with_sigma(n.sigma_cells.max(0.25)),
+            (true, Some(n)) => cfg
+                .with_sigma(n.sigma_cells.max(MIN_SIGMA_CELLS))
+                .with_sensor(n.sensor()),
             _ => cfg.clone(),
         };
         if let Some(n) = noise {
             eprintln!(
-                "{} experiment {id}: estimated range noise σ = {:.2} cells, {:.1} % outliers ({} hits){}",
+                "{} experiment {id}: estimated range noise σ = {:.2} cells, {:.1} % outliers ({} hits); mixture σ {:.2}, ε {:.1} %, unmatched {:.1} %{}",
                 setup.name,
                 n.sigma_cells,
                 100.0 * n.outlier_rate,
                 n.hits,
+                n.sigma_mixture,
+                100.0 * n.outlier_mixture,
+                100.0 * n.unmatched,
                 if cfg.estimate_sigma { "" } else { " (not used: --sigma-cells)" }
             );
         }
@@ -887,6 +933,8 @@ fn eval_one(
             seconds_per_map_sample: per_sample,
             noise,
             sigma_cells: cfg.sampling.sigma_cells,
+            sensor: cfg.sampling.sensor(),
+            perturbation,
             report,
         });
     }

@@ -6,7 +6,7 @@
 //! * the methods — [`sampling`] (the Gibbs sampler variants on a recorded dataset, the host-only
 //!   L = 25 sampler) and [`baselines`] (the source papers' other inference methods);
 //! * scoring and output — [`metrics`], [`render`], [`report`], [`noise`] (the range noise
-//!   estimated from a log), [`progress`].
+//!   estimated from a log), [`perturb`] (a log made noisier or sparser, seeded), [`progress`].
 //!
 //! Built on the simulator ([`crate::sim`]); nothing here depends on the firmware developer's
 //! [`crate::firmware`].
@@ -18,6 +18,7 @@ pub mod eval_log;
 pub mod eval_sim;
 pub mod metrics;
 pub mod noise;
+pub mod perturb;
 pub mod prior;
 pub mod progress;
 pub mod render;

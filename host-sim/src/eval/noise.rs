@@ -10,6 +10,14 @@
 //! corner) land anywhere. σ = 1.4826 · MAD of the residuals (robust to those outliers), minus
 //! the quantisation in quadrature; the outlier rate is the share of hits more than 3σ from the
 //! median or with no occupied cell in the window.
+//!
+//! The robot's settings read a calibrated pair instead ([`NoiseEstimate::sensor`]): σ from a
+//! Gaussian + uniform mixture fitted to the residuals ([`mixture`]: the MAD is its start; the MAD
+//! itself reads too high under noise or outliers, e.g. 1.45 for a true 1.0), and τ, the share
+//! of hits that support no surface near their end: the unmatched ones plus the mixture's
+//! uniform share of the rest. τ is not the sensor's outlier rate: on sparse data (few scans see
+//! a given wall) most of it is hits no other scan corroborates, which dilute a wall's evidence
+//! just the same.
 
 use ogm_core::{Beam, GridGeometry, LogOdds, Pose, Range};
 use serde::{Deserialize, Serialize};
@@ -31,6 +39,102 @@ pub struct NoiseEstimate {
     pub outlier_rate: f64,
     /// Hits examined.
     pub hits: usize,
+    /// σ (cells) of the Gaussian + uniform mixture fitted to the matched residuals
+    /// ([`mixture`]): calibrated past the MAD's 50 % breakdown.
+    #[serde(default)]
+    pub sigma_mixture: f64,
+    /// The mixture's uniform share among the matched hits.
+    #[serde(default)]
+    pub outlier_mixture: f64,
+    /// Share of the examined hits with no occupied cell in the window (mostly sparse data: no
+    /// other scan saw that surface); `outlier_rate` counts them too.
+    #[serde(default)]
+    pub unmatched: f64,
+}
+
+impl NoiseEstimate {
+    /// What the robot's settings read (`RunConfig::with_sensor`): the mixture's σ (at least
+    /// [`MIN_SIGMA_CELLS`]) and τ = unmatched + (1 − unmatched)·ε, the share of hits that
+    /// support no surface near their end.
+    pub fn sensor(&self) -> (f64, f64) {
+        let tau = self.unmatched + (1.0 - self.unmatched) * self.outlier_mixture;
+        (
+            self.sigma_mixture.max(MIN_SIGMA_CELLS),
+            if tau.is_finite() {
+                tau.clamp(0.0, 1.0)
+            } else {
+                0.0
+            },
+        )
+    }
+}
+
+/// The smallest σ (cells) an estimate hands on: below it a cell is far wider than the noise
+/// and every setting is the textbook one anyway.
+pub const MIN_SIGMA_CELLS: f64 = 0.25;
+
+/// Fits `(1 − ε)·N(μ, σ² + q) + ε·U(−W, W)` (`q` the search's quantisation variance, W =
+/// [`WINDOW_CELLS`]) to `residuals` (sorted) by EM from the robust start (their median, `sigma0`,
+/// ε = 0.1); returns `(σ, ε)`. The uniform term takes the outliers the MAD cannot ignore once
+/// they are many (its breakdown is 50 %), so σ stays the Gaussian's.
+pub fn mixture(residuals: &[f64], sigma0: f64, quant: f64) -> (f64, f64) {
+    let Some(&mid) = residuals.get(residuals.len() / 2) else {
+        return (sigma0, 0.0);
+    };
+    let n = residuals.len() as f64;
+    let (mut mu, mut var, mut eps) = (mid, sigma0 * sigma0 + quant, 0.1f64);
+    let u = 1.0 / (2.0 * WINDOW_CELLS);
+    // The Gaussian's responsibility for residual `r`.
+    let resp = |r: f64, mu: f64, var: f64, eps: f64| {
+        let g = (1.0 - eps) * (-(r - mu).powi(2) / (2.0 * var)).exp()
+            / (2.0 * std::f64::consts::PI * var).sqrt();
+        g / (g + eps * u)
+    };
+    for _ in 0..200 {
+        let (mut sw, mut swr) = (0.0, 0.0);
+        for &r in residuals {
+            let w = resp(r, mu, var, eps);
+            sw += w;
+            swr += w * r;
+        }
+        if sw <= 0.0 {
+            break;
+        }
+        let mu1 = swr / sw;
+        let swr2: f64 = residuals
+            .iter()
+            .map(|&r| resp(r, mu, var, eps) * (r - mu1).powi(2))
+            .sum();
+        let var1 = (swr2 / sw).max(quant + 1e-4);
+        let eps1 = (1.0 - sw / n).clamp(1e-4, 0.999);
+        let done = (var1 - var).abs() < 1e-6 && (eps1 - eps).abs() < 1e-6;
+        (mu, var, eps) = (mu1, var1, eps1);
+        if done {
+            break;
+        }
+    }
+    ((var - quant).max(0.0).sqrt().max(0.05), eps)
+}
+
+/// The median of sorted absolute deviations that come in half-cell steps (the search's), read
+/// as grouped data: the step holding the middle value is spread evenly over its ±¼-cell bin
+/// (the first, 0, over [0, ¼]) and the median interpolated in it. Without this the MAD, and σ
+/// with it, jumps between 0.5, 1, 1.5 ... cells (σ 0.67, 1.45, 2.20 ...): "a little more noise
+/// than the shared logs" read as twice theirs.
+fn grouped_median(dev: &[f64]) -> f64 {
+    let n = dev.len();
+    let Some(&m) = dev.get(n / 2) else {
+        return 0.0;
+    };
+    let below = dev.partition_point(|&d| d < m - 0.125);
+    let upto = dev.partition_point(|&d| d <= m + 0.125);
+    let in_bin = upto.saturating_sub(below).max(1) as f64;
+    let (lo, width) = if m < 0.125 {
+        (0.0, 0.25)
+    } else {
+        (m - 0.25, 0.5)
+    };
+    lo + width * ((n as f64 / 2.0 - below as f64) / in_bin).clamp(0.0, 1.0)
 }
 
 /// Estimates the noise of the scans `scans` from `map`, their log-odds map over `g` built with
@@ -77,7 +181,7 @@ pub fn estimate(
     let median = residuals[residuals.len() / 2];
     let mut dev: Vec<f64> = residuals.iter().map(|r| (r - median).abs()).collect();
     dev.sort_by(f64::total_cmp);
-    let mad = dev[dev.len() / 2];
+    let mad = grouped_median(&dev);
     // The search quantises a residual to half a cell (uniform: variance 1/48), and a wall cell
     // is one cell deep (uniform over it: 1/12).
     let quant = 1.0 / 48.0 + 1.0 / 12.0;
@@ -87,10 +191,14 @@ pub fn estimate(
         .filter(|r| (*r - median).abs() > 3.0 * sigma.max(0.5))
         .count();
     let n = residuals.len() + missing;
+    let (sigma_mixture, outlier_mixture) = mixture(&residuals, sigma, quant);
     Some(NoiseEstimate {
         sigma_cells: sigma,
         outlier_rate: (far + missing) as f64 / n as f64,
         hits: n,
+        sigma_mixture,
+        outlier_mixture,
+        unmatched: missing as f64 / n as f64,
     })
 }
 
@@ -165,6 +273,74 @@ mod tests {
                 (e.sigma_cells - sigma).abs() < 0.35 * sigma + 0.3,
                 "σ = {sigma}: estimated {e:?}"
             );
+            // The same bound: below a cell both read the simulator's own discretisation too
+            // (0.92 for σ = 0.5).
+            assert!(
+                (e.sigma_mixture - sigma).abs() < 0.35 * sigma + 0.3,
+                "σ = {sigma}: estimated {e:?}"
+            );
         }
+    }
+
+    /// The mixture recovers σ and the uniform share where the MAD is pulled up by outliers.
+    #[test]
+    fn mixture_separates_noise_from_outliers() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal, Uniform};
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        let uniform = Uniform::new(-WINDOW_CELLS, WINDOW_CELLS).unwrap();
+        for (sigma, eps) in [(0.5, 0.1), (1.0, 0.4), (2.0, 0.6)] {
+            let mut r: Vec<f64> = (0..20_000)
+                .map(|k| {
+                    if f64::from(k % 100) < eps * 100.0 {
+                        uniform.sample(&mut rng)
+                    } else {
+                        sigma * normal.sample(&mut rng)
+                    }
+                })
+                .collect();
+            r.sort_by(f64::total_cmp);
+            let mad = {
+                let mut d: Vec<f64> = r.iter().map(|x| x.abs()).collect();
+                d.sort_by(f64::total_cmp);
+                d[d.len() / 2] * 1.4826
+            };
+            let (s, e) = mixture(&r, mad, 0.0);
+            assert!(
+                (s - sigma).abs() < 0.05 * sigma,
+                "σ {sigma}: {s} (MAD {mad})"
+            );
+            assert!((e - eps).abs() < 0.02, "ε {eps}: {e}");
+        }
+        assert_eq!(mixture(&[], 0.7, 0.1), (0.7, 0.0));
+    }
+
+    /// The grouped median interpolates within the half-cell step that holds the middle value.
+    #[test]
+    fn grouped_median_is_not_quantised() {
+        // 60 % zeros, 40 % half-cells: the plain median is 0, the grouped one 5/6 of ¼.
+        let mut d = vec![0.0; 60];
+        d.extend([0.5; 40]);
+        assert!((grouped_median(&d) - 0.25 * 50.0 / 60.0).abs() < 1e-12);
+        // A third each of 0, ½ and 1: the middle step is ½, read as its bin [¼, ¾] halfway.
+        let mut d = vec![0.0; 30];
+        d.extend([0.5; 30]);
+        d.extend([1.0; 30]);
+        assert!((grouped_median(&d) - 0.5).abs() < 1e-12);
+        assert_eq!(grouped_median(&[]), 0.0);
+    }
+
+    #[test]
+    fn tau_joins_unmatched_and_outliers() {
+        let e = NoiseEstimate {
+            sigma_mixture: 0.1,
+            outlier_mixture: 0.2,
+            unmatched: 0.5,
+            ..NoiseEstimate::default()
+        };
+        let (s, t) = e.sensor();
+        assert_eq!(s, MIN_SIGMA_CELLS);
+        assert!((t - 0.6).abs() < 1e-12);
     }
 }

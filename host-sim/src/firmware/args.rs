@@ -37,7 +37,7 @@ pub struct FirmwareArgs {
     #[arg(long, default_value_t = 8)]
     pub count_tiles_per_scan: u16,
     /// Sweeps of a sampler tile per visit (more: the tile's ray gather is shared by more patch
-    /// updates; fewer: the sampler moves over the map sooner). Default: `RunConfig::robot`'s.
+    /// updates; fewer: the sampler moves over the map sooner). Default: `RunConfig::ROBOT`'s.
     #[arg(long)]
     pub visit_sweeps: Option<u8>,
     /// Mix garbage into the input (the firmware must skip it; the comparison still holds).
@@ -104,10 +104,19 @@ pub struct FirmwareArgs {
     /// Show QEMU's output (decoded defmt log) instead of writing it to a log file.
     #[arg(long)]
     pub verbose: bool,
+    /// A real laser log (CARMEN, plain or gzip) through the firmware: its scans as LD06 turns
+    /// on the lidar UART, its poses as pose messages (needs `--out DIR`: the robot's map as
+    /// `map.yaml`, scored like `eval-log` in `report.json`).
+    #[arg(long)]
+    pub log: Option<PathBuf>,
+    /// With `--log`: `eval-log`'s experiment (1 = every 2nd beam, 2 = every 2nd pose and beam,
+    /// 3 = every 10th pose and 2nd beam, 0 = everything).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(0..=3))]
+    pub experiment: u8,
     /// Only decode a captured map stream (e.g. firmware/target/qemu/uart1.out) and summarise it.
     #[arg(long)]
     pub decode: Option<PathBuf>,
-    /// The sampler's settings (default: the robot's, `RunConfig::robot`).
+    /// The sampler's settings (default: the robot's, `RunConfig::ROBOT`).
     #[command(flatten)]
     pub sampler: SamplerArgs,
 }
@@ -143,6 +152,8 @@ impl Default for FirmwareArgs {
             out: None,
             verbose: false,
             decode: None,
+            log: None,
+            experiment: 1,
         }
     }
 }
@@ -184,7 +195,7 @@ pub enum PatternArg {
     A1,
 }
 
-/// Sampler settings sent to the robot (each defaults to `RunConfig::robot`'s).
+/// Sampler settings sent to the robot (each defaults to `RunConfig::ROBOT`'s).
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct SamplerArgs {
     /// Measurement term: rays, evidence or hybrid.

@@ -261,7 +261,10 @@ mod tests {
     #[test]
     fn input_round_trips_through_the_robots_demux_with_garbage() {
         let scans: Vec<ScanRecord> = (0..8).map(record).collect();
-        let cfg = RunConfig::paper((0, 0), 3750, 3, Budget::Fixed { updates: 10 });
+        let cfg = RunConfig::PAPER
+            .with_max_range_mm(3750)
+            .with_seed(3)
+            .with_budget(Budget::Fixed { updates: 10 });
         let input = encode_run(&cfg, &scans, true).unwrap();
         assert!(input.garbage_bytes > 0);
         let mut rx = LinkRx::new();

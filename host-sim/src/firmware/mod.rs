@@ -31,6 +31,8 @@ mod args;
 mod compare;
 mod groups;
 pub mod input;
+pub mod log;
+mod log_run;
 mod qemu;
 mod replay;
 mod report;

@@ -204,7 +204,7 @@ pub(super) fn figures(g: &Groups, hello: &OwnedHello) -> Figures {
         let r = &s.report;
         f.scans += 1;
         beams += u64::from(r.beams);
-        cells += u64::from(r.cells_hit + r.cells_freed);
+        cells += u64::from(r.mapper.cells_hit + r.mapper.cells_freed);
         insert += u64::from(r.insert_ticks);
         store += u64::from(r.store_ticks);
         sampler += u64::from(r.sampler_ticks);

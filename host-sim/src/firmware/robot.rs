@@ -97,6 +97,11 @@ impl Trajectory {
         }
     }
 
+    /// Through `knots` (time µs, pose), in time order.
+    pub fn from_knots(knots: Vec<(u64, Pose)>) -> Self {
+        Trajectory { knots }
+    }
+
     /// Where the robot is at `t_us` (held at the ends), in f64: (x mm, y mm, heading rad).
     pub fn at(&self, t_us: u64) -> (f64, f64, f64) {
         let i = self.knots.partition_point(|(t, _)| *t <= t_us);

@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use anyhow::{anyhow, bail, ensure};
+use anyhow::{anyhow, bail, ensure, Context};
 use ogm_core::config::{LidarModel, RunConfig};
 use ogm_core::wire::ScanReport;
 use ogm_field::stream::{decode_file, DeviceEvent, StreamDecoder};
@@ -210,9 +210,6 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         "--robot runs the robot loop only: no --accuracy, --idle, --noise-ppm, --garbage, \
          --soak-scans or --repeat-frames with it"
     );
-    let root = repo_root();
-    let qemu_dir = root.join("firmware/target/qemu");
-    std::fs::create_dir_all(&qemu_dir)?;
     let world = firmware_world(args)?;
     let moving = FirmwareArgs {
         moving: true,
@@ -248,6 +245,20 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         super::robot::POSE_PERIOD_US,
         args.seed,
     )?;
+    run_input(args, &config, &input).map(|(r, _)| r)
+}
+
+/// A robot run's two serial lines (`input`, made for `config`) through the firmware in QEMU,
+/// checked bit-exact against the host replay (or, with `--host-only`, the replay alone); the
+/// report and the captured map stream.
+pub(super) fn run_input(
+    args: &FirmwareArgs,
+    config: &RunConfig,
+    input: &super::robot::RobotInput,
+) -> anyhow::Result<(FirmwareReport, Vec<u8>)> {
+    let root = repo_root();
+    let qemu_dir = root.join("firmware/target/qemu");
+    std::fs::create_dir_all(&qemu_dir)?;
     let link: Vec<u8> = [&input.link[..], &input.finish[..]].concat();
     if args.host_only {
         // The firmware's application on the host, on the same two byte streams, with a fixed
@@ -267,7 +278,7 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
             .collect::<Result<_, _>>()
             .map_err(|e| anyhow!("the host's own stream does not decode: {e}"))?;
         let groups = Groups::of(&events);
-        return Ok(robot_report(&config, &input, &link, &groups, &events));
+        return Ok((robot_report(config, input, &link, &groups, &events), stream));
     }
     let elf = match &args.elf {
         Some(e) => e.clone(),
@@ -328,18 +339,21 @@ fn run_robot(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         &heard.as_slice(),
         &want,
     );
-    let r = robot_report(&config, &input, &link, &groups, &events);
-    Ok(FirmwareReport {
-        stream_bytes: ds.bytes,
-        stream_frames: ds.frames,
-        stream_bad_frames: ds.bad_frames,
-        exit_code,
-        qemu_seconds: secs,
-        mismatches: checker.mismatches,
-        checks: checker.checks,
-        log,
-        ..r
-    })
+    let r = robot_report(config, input, &link, &groups, &events);
+    Ok((
+        FirmwareReport {
+            stream_bytes: ds.bytes,
+            stream_frames: ds.frames,
+            stream_bad_frames: ds.bad_frames,
+            exit_code,
+            qemu_seconds: secs,
+            mismatches: checker.mismatches,
+            checks: checker.checks,
+            log,
+            ..r
+        },
+        stream,
+    ))
 }
 
 /// The LD06 sits this far ahead of the robot's centre in `--robot` runs, mm.
@@ -421,8 +435,45 @@ pub fn cli(args: &FirmwareArgs) -> anyhow::Result<()> {
         );
         return Ok(());
     }
+    if let Some(log) = &args.log {
+        ensure!(
+            !args.robot && !args.accuracy && args.map.is_none() && args.soak_scans.is_none(),
+            "--log sends the log's scans: no --robot, --accuracy, --map or --soak-scans with it"
+        );
+        if let Some(elf) = &args.elf {
+            check_elf(elf)?;
+        }
+        if !args.host_only {
+            if let Some(why) = toolchain_missing() {
+                bail!("{why}");
+            }
+        }
+        let r = super::log_run::run_log(args, log, args.experiment)?;
+        print_report(&r.firmware);
+        println!(
+            "{}: robot's grid covers {:.1} % of the benchmark's mapped cells; F1 near mapped {}",
+            log.display(),
+            100.0 * r.coverage,
+            r.near_mapped
+                .iter()
+                .map(|(m, s)| format!("{m} {:.4}", s.max_f1))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        if !args.host_only && !r.firmware.identical() {
+            bail!("the firmware's map differs from the host's");
+        }
+        let rb = r.firmware.robot.as_ref().context("no robot report")?;
+        ensure!(
+            rb.turns_mapped == rb.turns_sent as usize,
+            "{} of {} turns were mapped",
+            rb.turns_mapped,
+            rb.turns_sent
+        );
+        return Ok(());
+    }
     if args.host_only && !args.accuracy && !args.robot {
-        bail!("--host-only only makes sense with --accuracy or --robot");
+        bail!("--host-only only makes sense with --accuracy, --robot or --log");
     }
     // Bad input files first, each with a one-line error naming it (before the toolchain check).
     if let Some(elf) = &args.elf {

@@ -57,7 +57,11 @@ pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunC
         (world.origin_m.0 * 1000.0).round() as i32,
         (world.origin_m.1 * 1000.0).round() as i32,
     );
-    let robot = RunConfig::robot(origin, max_range_mm, args.seed, budget);
+    let robot = RunConfig::ROBOT
+        .with_origin_mm(origin.0, origin.1)
+        .with_max_range_mm(max_range_mm)
+        .with_seed(args.seed)
+        .with_budget(budget);
     args.sampler.apply(RunConfig {
         cell_mm: (world.resolution_m * 1000.0).round() as u32,
         tiles_per_scan: args.tiles_per_scan,

@@ -1,13 +1,13 @@
-//! A synthetic 2-D lidar that implements `ogm_core::RangeSensor` — the same trait
-//! `ogm_core::lidar::ld06::Ld06Reader` (the LD06 on a serial port) implements — so simulated scans
-//! enter the mapper the way a real sensor's do.
+//! A synthetic 2-D lidar: one revolution per [`SimLidar::read_scan`], in the engine's own scan
+//! type ([`ScanBuf`]). `host-sim firmware` encodes these scans as LD06 packets, so the firmware
+//! reads them through its real lidar parser.
 //!
 //! Beams are cast exactly (Amanatides–Woo, f64) into the ground truth from the robot's pose; the
 //! range to the boundary of the first cell that blocks the beam gets Gaussian noise (σ in cells,
 //! paper: 3) and is reported in millimetres. A beam that hits nothing within the maximum range
 //! (paper: 75 cells) — or whose noisy range reaches it — is reported as `Range::NoReturn`.
 
-use ogm_core::{Angle, Beam, Pose, Range, RangeSensor, ScanBuf};
+use ogm_core::{Angle, Beam, Pose, Range, ScanBuf};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -35,7 +35,7 @@ impl Default for LidarConfig {
     }
 }
 
-/// The simulated sensor. Set [`SimLidar::pose`] before each [`RangeSensor::read_scan`].
+/// The simulated sensor. Set [`SimLidar::pose`] before each [`SimLidar::read_scan`].
 pub struct SimLidar<'w> {
     world: &'w World,
     config: LidarConfig,
@@ -138,10 +138,9 @@ pub fn cast_ray(world: &World, x: f64, y: f64, theta: f64, limit: f64) -> Option
     }
 }
 
-impl RangeSensor for SimLidar<'_> {
-    type Error = core::convert::Infallible;
-
-    fn read_scan<const N: usize>(&mut self, scan: &mut ScanBuf<N>) -> Result<(), Self::Error> {
+impl SimLidar<'_> {
+    /// One revolution from [`SimLidar::pose`] into `scan` (cleared first).
+    pub fn read_scan<const N: usize>(&mut self, scan: &mut ScanBuf<N>) {
         scan.clear();
         let n = u32::from(self.config.beams);
         let res_mm = self.world.resolution_m * 1000.0;
@@ -164,7 +163,6 @@ impl RangeSensor for SimLidar<'_> {
             };
             scan.push(Beam { angle, range });
         }
-        Ok(())
     }
 }
 
@@ -227,7 +225,7 @@ mod tests {
             let mut l = SimLidar::new(&w, cfg, 7).unwrap();
             l.pose = pose;
             let mut s: ScanBuf<128> = ScanBuf::new();
-            l.read_scan(&mut s).unwrap();
+            l.read_scan(&mut s);
             scans.push(s.beams().to_vec());
         }
         assert_eq!(scans[0], scans[1]);

@@ -1,12 +1,10 @@
 //! The simulator the researcher and the firmware developer share: one simulated dataset — a
 //! world ([`generate`] builds them; the type is `ogm_field::world::World`), a robot exploring it
-//! ([`mod@explore`]), the synthetic lidar ([`lidar`]), and the online fixed-point mapper — wired
-//! through `ogm_core::session::pipeline::map_next_scan` and the `hal` traits (`RangeSensor`,
-//! `PoseSource`) that `ogm_core`'s LD06 and RPLIDAR readers implement; and real recorded scans,
-//! CARMEN logs ([`carmen`]), in the same form ([`explore::ScanRecord`]). (Today's firmware
-//! receives its scans as LD06 packets framed with poses on the host link and maps them with the
-//! same mapper through `ogm_core::session::Session`; `host-sim firmware` sends it this
-//! module's scans that way.)
+//! ([`mod@explore`]), the synthetic lidar ([`lidar`]), and the online fixed-point mapper
+//! ([`insert_scan`]); and real recorded scans, CARMEN logs ([`carmen`]), in the same form
+//! ([`explore::ScanRecord`]). The firmware maps the same scans through its own lidar parser:
+//! `host-sim firmware` sends them as LD06 packets with pose frames (see
+//! `ogm_core::lidar::source` for why that byte stream is the one seam).
 
 pub mod carmen;
 pub mod explore;
@@ -15,9 +13,9 @@ pub mod lidar;
 
 use anyhow::{anyhow, ensure, Context};
 use ogm_core::map::mapper::marks_len;
-use ogm_core::session::pipeline::map_next_scan;
+use ogm_core::map::sensor_model::InverseModelKind;
 use ogm_core::{
-    GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose, PoseSource, ScanBuf,
+    GridGeometry, LogOdds, LogOddsGrid, Mapper, MapperConfig, Pose, ScanBuf, ScanStats,
 };
 use ogm_field::world::World;
 
@@ -26,17 +24,6 @@ use crate::sim::lidar::{LidarConfig, SimLidar};
 
 /// Largest scan the simulator produces (beams per revolution).
 pub const MAX_BEAMS: usize = 4096;
-
-/// A pose source that returns a pose set from outside (known-pose mapping).
-#[derive(Clone, Copy, Debug, Default)]
-pub struct KnownPose(pub Pose);
-
-impl PoseSource for KnownPose {
-    type Error = core::convert::Infallible;
-    fn current_pose(&mut self) -> Result<Pose, Self::Error> {
-        Ok(self.0)
-    }
-}
 
 /// Simulation settings.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -85,6 +72,21 @@ pub fn new_mapper(
     Mapper::new(grid, vec![0; marks_len(geometry.len())], config).map_err(|e| anyhow!("{e}"))
 }
 
+/// Integrates one scan taken at `pose` into a host mapper (known-pose mapping, as in the
+/// papers); the cone model needs its beams in angle order, so `scan` is sorted for it.
+pub fn insert_scan<const N: usize>(
+    mapper: &mut Mapper<Vec<LogOdds>, Vec<u32>>,
+    pose: &Pose,
+    scan: &mut ScanBuf<N>,
+) -> anyhow::Result<ScanStats> {
+    if matches!(mapper.config().model.kind(), InverseModelKind::Cone { .. }) {
+        scan.sort_by_angle();
+    }
+    mapper
+        .insert_scan(pose, scan.beams())
+        .map_err(|e| anyhow!("mapping failed: {e}"))
+}
+
 /// The outcome of one simulated run.
 pub struct SimRun {
     /// Recorded scans (pose + beams), in order.
@@ -115,9 +117,8 @@ pub fn simulate(world: &World, cfg: &SimConfig, seed: u64) -> anyhow::Result<Sim
     let mut marks = vec![0u32; marks_len(geometry.len())];
     let scans = explore(world, &cfg.explore, seed, |pose| {
         lidar.pose = *pose;
-        let mut poses = KnownPose(*pose);
-        map_next_scan(&mut lidar, &mut poses, &mut *buf, &mut mapper)
-            .map_err(|e| anyhow!("mapping failed: {e:?}"))?;
+        lidar.read_scan(&mut *buf);
+        insert_scan(&mut mapper, pose, &mut *buf)?;
         mark_observed(
             &geometry,
             &mapper_config,

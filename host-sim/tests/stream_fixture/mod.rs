@@ -37,7 +37,10 @@ pub fn hello_and_config() -> Vec<u8> {
     );
     let config = RunConfig {
         cell_mm: 100,
-        ..RunConfig::robot((-1000, 500), 8000, 1, Budget::Fixed { updates: 1 })
+        ..RunConfig::ROBOT
+            .with_origin_mm(-1000, 500)
+            .with_max_range_mm(8000)
+            .with_budget(Budget::Fixed { updates: 1 })
     };
     frame(&DeviceMsg::Configured(config), &mut s);
     s

@@ -5,6 +5,7 @@
 //! [`noise`] holds the settings matched to a sensor's range noise.
 
 pub mod noise;
+pub mod sensor;
 
 use serde::{Deserialize, Serialize};
 
@@ -164,65 +165,138 @@ fn textbook_free_update() -> u16 {
     256
 }
 
+impl Budget {
+    /// One LD06 turn of sampling after each scan: until 100 ms of board time after the scan
+    /// was complete (the sensor turns at 10 Hz), with no cap on the updates. The robot's
+    /// default ([`RunConfig::ROBOT`]).
+    pub const LD06_TURN: Budget = Budget::Time {
+        period_us: 100_000,
+        max_updates: u32::MAX,
+    };
+}
+
+impl Default for Budget {
+    /// [`Budget::LD06_TURN`].
+    fn default() -> Self {
+        Budget::LD06_TURN
+    }
+}
+
+impl Default for RunConfig {
+    /// [`RunConfig::ROBOT`].
+    fn default() -> Self {
+        RunConfig::ROBOT
+    }
+}
+
 impl RunConfig {
-    /// The paper's settings on a grid with its lower-left corner at `origin_mm`: 5 cm cells,
-    /// σ = 3 cells, 1 % outliers, p_randPatch = 0.001, border prior with 16 candidates, 16-cell
-    /// sampler tiles visited for 8 sweeps.
-    pub const fn paper(
-        origin_mm: (i32, i32),
-        max_range_mm: u32,
-        seed: u64,
-        budget: Budget,
-    ) -> Self {
+    /// The paper's settings: 5 cm cells, σ = 3 cells, 1 % outliers, p_randPatch = 0.001,
+    /// border prior with 16 candidates, 16-cell sampler tiles visited for 8 sweeps; and, like
+    /// [`RunConfig::ROBOT`], the grid's lower-left corner at the world origin, an LD06's
+    /// 12 m range, seed 1 and [`Budget::LD06_TURN`] (set them with the `with_` builders).
+    pub const PAPER: RunConfig = RunConfig {
+        origin_x_mm: 0,
+        origin_y_mm: 0,
+        cell_mm: 50,
+        max_range_mm: 12_000,
+        min_range_mm: 0,
+        seed: 1,
+        sigma_milli_cells: 3000,
+        outlier_ppm: 10_000,
+        p_rand_patch_ppm: 1000,
+        burn_in_sweeps: 10,
+        max_candidates: 16,
+        sampler_tile_shift: 4,
+        // 8 sweeps share each tile's ray gather: on the firmware's simulated run (6.4 ms
+        // budget) 2 475 instructions per patch instead of 4 705 with 2 (seed 1), and online
+        // max F1 0.72 instead of 0.59 (mean of seeds 1-3; docs/firmware.md, "Figures").
+        visit_sweeps: 8,
+        budget: Budget::LD06_TURN,
+        tiles_per_scan: 8,
+        count_tiles_per_scan: 8,
+        data: DataTerm::Rays,
+        evidence_gain_q8: 256,
+        evidence_free_q8: 256,
+        free_update_q8: 256,
+        face_band: false,
+        data_candidate: false,
+        estimator: Estimator::Counts,
+        hot_share: 0,
+        mount: Pose {
+            x_mm: 0,
+            y_mm: 0,
+            heading: Angle(0),
+        },
+        poses: PoseInput::Link,
+        lidar: LidarModel::Ld06,
+    };
+
+    /// The robot's settings ([`Default`]; what the firmware runs with when no host configures
+    /// it, and what `host-sim firmware` sends): the paper's grid and forward model, and the
+    /// sampler made for online use on a microcontroller — per-cell evidence instead of rays (no
+    /// memory that grows with the mission, a bounded cost per patch), the evidence's own
+    /// configuration as a candidate, the mapper's face band with the evidence as it is (what
+    /// [`RunConfig::with_noise_matched`] gives at the paper's σ = 3 cells; tested), averaged
+    /// estimates restarted where the evidence changes, and three quarters of the tile visits
+    /// where it changed. Why each: docs/results.md, "Online sampler". A constant, so a
+    /// firmware's stored settings carry no floating-point code.
+    ///
+    /// Grid origin (0, 0) mm, 12 m (an LD06's range), seed 1, one LD06 turn of sampling per
+    /// scan ([`Budget::LD06_TURN`]): a robot sets its origin (e.g. centred on where it was
+    /// switched on) with [`RunConfig::with_origin_mm`].
+    pub const ROBOT: RunConfig = RunConfig {
+        data: DataTerm::Evidence,
+        evidence_gain_q8: 256,
+        evidence_free_q8: 256,
+        free_update_q8: 256,
+        face_band: true,
+        data_candidate: true,
+        estimator: Estimator::Average {
+            shift: 3,
+            max_shift: 7,
+            reset_on_change: true,
+            rao_blackwell: false,
+        },
+        hot_share: 192,
+        burn_in_sweeps: 2,
+        ..RunConfig::PAPER
+    };
+
+    /// These settings with the grid's lower-left corner at (`x`, `y`) mm.
+    #[must_use]
+    pub const fn with_origin_mm(self, x: i32, y: i32) -> Self {
         RunConfig {
-            origin_x_mm: origin_mm.0,
-            origin_y_mm: origin_mm.1,
-            cell_mm: 50,
-            max_range_mm,
-            min_range_mm: 0,
-            seed,
-            sigma_milli_cells: 3000,
-            outlier_ppm: 10_000,
-            p_rand_patch_ppm: 1000,
-            burn_in_sweeps: 10,
-            max_candidates: 16,
-            sampler_tile_shift: 4,
-            // 8 sweeps share each tile's ray gather: on the firmware's simulated run (6.4 ms
-            // budget) 2 475 instructions per patch instead of 4 705 with 2 (seed 1), and online
-            // max F1 0.72 instead of 0.59 (mean of seeds 1-3; docs/firmware.md, "Figures").
-            visit_sweeps: 8,
-            budget,
-            tiles_per_scan: 8,
-            count_tiles_per_scan: 8,
-            data: DataTerm::Rays,
-            evidence_gain_q8: 256,
-            evidence_free_q8: 256,
-            free_update_q8: 256,
-            face_band: false,
-            data_candidate: false,
-            estimator: Estimator::Counts,
-            hot_share: 0,
-            mount: Pose {
-                x_mm: 0,
-                y_mm: 0,
-                heading: Angle(0),
-            },
-            poses: PoseInput::Link,
-            lidar: LidarModel::Ld06,
+            origin_x_mm: x,
+            origin_y_mm: y,
+            ..self
         }
     }
 
-    /// The robot's settings (what the firmware runs with when no host configures it, and what
-    /// `host-sim firmware` sends): the paper's grid and forward model, and the sampler made for
-    /// online use on a microcontroller — per-cell evidence instead of rays (no memory that grows
-    /// with the mission, a bounded cost per patch), the evidence's own configuration as a
-    /// candidate, free evidence matched to the sensor's noise (half in the mapper's update, half
-    /// in the evidence term), averaged estimates restarted where the evidence changes, and
-    /// three quarters of the tile visits where it changed. Why each: docs/results.md, "Online
-    /// sampler".
-    pub fn robot(origin_mm: (i32, i32), max_range_mm: u32, seed: u64, budget: Budget) -> Self {
-        let robot = Self::robot_at_paper_sigma(origin_mm, max_range_mm, seed, budget);
-        robot.with_noise_matched(f64::from(robot.sigma_milli_cells) / 1000.0)
+    /// These settings with the sensor's maximum range `max_range_mm`.
+    #[must_use]
+    pub const fn with_max_range_mm(self, max_range_mm: u32) -> Self {
+        RunConfig {
+            max_range_mm,
+            ..self
+        }
+    }
+
+    /// These settings with sampler seed `seed`.
+    #[must_use]
+    pub const fn with_seed(self, seed: u64) -> Self {
+        RunConfig { seed, ..self }
+    }
+
+    /// These settings with the sampler budget `budget`.
+    #[must_use]
+    pub const fn with_budget(self, budget: Budget) -> Self {
+        RunConfig { budget, ..self }
+    }
+
+    /// These settings with poses from `poses`.
+    #[must_use]
+    pub const fn with_poses(self, poses: PoseInput) -> Self {
+        RunConfig { poses, ..self }
     }
 
     /// These settings with the robot's noise-matched mapper and evidence for a sensor whose
@@ -251,35 +325,6 @@ impl RunConfig {
             evidence_free_q8: free,
             evidence_gain_q8: noise::noise_matched_gain_q8(sigma),
             ..self
-        }
-    }
-
-    /// [`RunConfig::robot`] as a constant, for the paper's σ = 3 cells (what
-    /// [`RunConfig::with_noise_matched`] gives there: the face band, the evidence as it is;
-    /// tested), so a firmware's stored settings carry no floating-point code.
-    pub const fn robot_at_paper_sigma(
-        origin_mm: (i32, i32),
-        max_range_mm: u32,
-        seed: u64,
-        budget: Budget,
-    ) -> Self {
-        let paper = Self::paper(origin_mm, max_range_mm, seed, budget);
-        RunConfig {
-            data: DataTerm::Evidence,
-            evidence_gain_q8: 256,
-            evidence_free_q8: 256,
-            free_update_q8: 256,
-            face_band: true,
-            data_candidate: true,
-            estimator: Estimator::Average {
-                shift: 3,
-                max_shift: 7,
-                reset_on_change: true,
-                rao_blackwell: false,
-            },
-            hot_share: 192,
-            burn_in_sweeps: 2,
-            ..paper
         }
     }
 

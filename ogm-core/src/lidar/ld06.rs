@@ -30,7 +30,7 @@
 //! ([`Ld06Counters`]).
 
 use crate::lidar::encode::EncodeError;
-use crate::lidar::source::{RangeSensor, ReadError};
+use crate::lidar::source::ReadError;
 use crate::types::angle::Angle;
 use crate::types::scan::{Beam, Range, ScanBuf};
 
@@ -377,7 +377,7 @@ fn header_inside(b: &[u8]) -> bool {
 }
 
 /// A blocking LD06 driver over any [`embedded_io::Read`] (a UART on the robot, a byte slice or a
-/// pipe on the host): implements [`RangeSensor`] by assembling one revolution per scan.
+/// pipe on the host): [`Ld06Reader::read_scan`] assembles one revolution per scan.
 ///
 /// A revolution ends where the angle wraps (drops by more than 180°); the points after the wrap
 /// start the next scan. The first scan after start-up is usually a partial turn. Bad packets are
@@ -448,10 +448,13 @@ impl<R: embedded_io::Read> Ld06Reader<R> {
     }
 }
 
-impl<R: embedded_io::Read> RangeSensor for Ld06Reader<R> {
-    type Error = ReadError<R::Error>;
-
-    fn read_scan<const N: usize>(&mut self, scan: &mut ScanBuf<N>) -> Result<(), Self::Error> {
+impl<R: embedded_io::Read> Ld06Reader<R> {
+    /// Blocks until the next complete scan (one revolution) has been read and writes it into
+    /// `scan`, which it clears first; beams beyond `scan`'s capacity are counted as its overflow.
+    pub fn read_scan<const N: usize>(
+        &mut self,
+        scan: &mut ScanBuf<N>,
+    ) -> Result<(), ReadError<R::Error>> {
         scan.clear();
         for b in self.carry.iter().take(self.n_carry) {
             scan.push(*b);

@@ -541,7 +541,9 @@ mod tests {
     }
 
     fn clean_stream() -> Vec<u8> {
-        let cfg = RunConfig::paper((0, 0), 3000, 1, Budget::Fixed { updates: 5 });
+        let cfg = RunConfig::PAPER
+            .with_max_range_mm(3000)
+            .with_budget(Budget::Fixed { updates: 5 });
         let mut v = frame(&HostMsg::Config(cfg));
         for k in 0..3 {
             v.extend(scan_bytes(k, &beams(48, 1000 * (k + 1))));
@@ -570,7 +572,9 @@ mod tests {
     fn repeated_frames_are_idempotent() {
         // Every host frame three times (what the host sends on a noisy link): same steps, no
         // error, and one damaged copy of each changes nothing either.
-        let cfg = RunConfig::paper((0, 0), 3000, 1, Budget::Fixed { updates: 5 });
+        let cfg = RunConfig::PAPER
+            .with_max_range_mm(3000)
+            .with_budget(Budget::Fixed { updates: 5 });
         let bs = beams(48, 1500);
         let start = frame(&HostMsg::ScanStart {
             seq: 4,
@@ -643,7 +647,9 @@ mod tests {
 
     #[test]
     fn resyncs_after_garbage_truncation_and_bad_frames() {
-        let cfg = RunConfig::paper((0, 0), 3000, 1, Budget::Fixed { updates: 5 });
+        let cfg = RunConfig::PAPER
+            .with_max_range_mm(3000)
+            .with_budget(Budget::Fixed { updates: 5 });
         let mut v = frame(&HostMsg::Config(cfg));
         v.extend_from_slice(&[0x54, 0x54, 0x2C, 0x99, 0x00, 0x13, 0x00, 0x00]); // junk
         let s0 = scan_bytes(0, &beams(48, 1000));

@@ -3,7 +3,7 @@
 //! A spinning lidar measures while the robot moves: an LD06 sends a 12-point packet every
 //! ~2.2 ms, one turn in 100 ms, each packet stamped with the sensor's millisecond clock; an
 //! RPLIDAR A1 sends one 5-byte node every ~0.5 ms with no time at all.
-//! [`Turns`] takes either (as [`Batch`]es of up to 12 points with one time) and the robot's
+//! [`Turns`] takes either (as batches of up to 12 points with one time) and the robot's
 //! timestamped poses (odometry or a localiser, [`crate::wire::HostMsg::Pose`], at their own
 //! rate) and hands out whole turns as ordinary scans: one pose, beams relative to it.
 //!
@@ -46,7 +46,7 @@ use crate::types::scan::{Beam, Range, ScanBuf};
 pub const QUEUE: usize = 64;
 /// Poses kept for interpolation.
 pub const POSES: usize = 32;
-/// Points per [`Batch`]: an LD06 packet's.
+/// Points per batch: an LD06 packet's.
 pub const BATCH: usize = crate::lidar::ld06::POINTS;
 /// The LD06 timestamp wraps here, ms.
 const WRAP_MS: u64 = 30_000;
@@ -819,7 +819,9 @@ mod tests {
                 y_mm: mount.y_mm,
                 heading: mount.yaw,
             },
-            ..RunConfig::paper((0, 0), 8000, 1, crate::config::Budget::Fixed { updates: 0 })
+            ..RunConfig::PAPER
+                .with_max_range_mm(8000)
+                .with_budget(crate::config::Budget::Fixed { updates: 0 })
         };
         let (turns, per_turn) = (4u64, 30u64);
         let mut ld = Turns::configured(&RunConfig {

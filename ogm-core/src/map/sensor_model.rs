@@ -14,7 +14,9 @@
 //!   wall). The textbook model instead frees a wall's face cell whenever a noisy reading lands
 //!   behind it, which under σ = 3 cells is more often than it lands in it, so its log-odds map
 //!   draws faces cells too deep; the band's expected evidence changes sign at the face itself
-//!   (docs/results.md, "Face band").
+//!   (docs/results.md, "Face band"). A band narrower than a few cells is evaluated part of the
+//!   way towards each cell's far edge ([`InverseSensorModel::with_far_edge`]), so that as σ → 0
+//!   it becomes the beam model exactly.
 //! * [`InverseModelKind::Cone`] — the α/β model of the lecture (Probabilistic Robotics §9.2): a
 //!   cell is updated from the beam closest to it in heading; it is occupied if it lies within α/2
 //!   of a real return, free if it is nearer than the return, and untouched if it is more than β/2
@@ -55,6 +57,10 @@ pub struct InverseSensorModel {
     /// the fixed-point ones (Hähnel's ±ln 4 = ±1024 LSB and its free scalings by `q8 / 256`), so
     /// a model built from integers alone needs no floating point (the firmware's flash).
     nominal: Option<(f64, f64)>,
+    /// With [`InverseModelKind::FaceBand`], the share (Q8, 0 ..= 256) of half a ray step by
+    /// which each band cell's offset is taken past the ray's sample point, towards the cell's
+    /// far edge ([`Self::with_far_edge`]); 0 for every other kind.
+    far_edge_q8: u16,
 }
 
 impl Default for InverseSensorModel {
@@ -71,6 +77,7 @@ impl InverseSensorModel {
             occ: LogOdds::LN_4,
             free: LogOdds(-LogOdds::LN_4.0),
             nominal: None,
+            far_edge_q8: 0,
         }
     }
 
@@ -91,8 +98,35 @@ impl InverseSensorModel {
         }
         Ok(InverseSensorModel {
             kind: InverseModelKind::FaceBand { sigma_mm },
+            far_edge_q8: 0,
             ..self
         })
+    }
+
+    /// This face band ([`InverseModelKind::FaceBand`]) with each cell's offset past the reading
+    /// taken `q8`/256 of half a ray step further on, towards the cell's far edge (and Φ of it
+    /// past the band's reach, where only this shift gets: up to
+    /// [`FACE_BAND_FAR_EIGHTHS`]). Why: the band evaluates Φ at each cell's sample point (about
+    /// its centre along the ray), so a band narrower than a cell gives the reading's cell only
+    /// Φ(1.5)·l_occ and frees a wall's face cell that noisy readings pass about as often as they
+    /// hit it; at the far edge Φ is the chance that the surface lies before the ray leaves the
+    /// cell, and a band of σ → 0 hits the reading's cell with the whole `l_occ`: the beam model.
+    /// A wide band (σ of several cells) is right at the sample point
+    /// ([`crate::config::RunConfig::band_far_edge_q8`] weighs the two). 0 is the band as it was;
+    /// [`Error::InvalidModel`] for `q8` > 256 or a model without a face band.
+    pub const fn with_far_edge(self, q8: u16) -> Result<Self> {
+        if q8 > 256 || !matches!(self.kind, InverseModelKind::FaceBand { .. }) {
+            return Err(Error::InvalidModel);
+        }
+        Ok(InverseSensorModel {
+            far_edge_q8: q8,
+            ..self
+        })
+    }
+
+    /// The face band's far-edge share, Q8 ([`Self::with_far_edge`]; 0 without a band).
+    pub const fn far_edge_q8(&self) -> u16 {
+        self.far_edge_q8
     }
 
     /// `hahnel().with_free_scale(q8)`, errors included.
@@ -148,6 +182,7 @@ impl InverseSensorModel {
             occ,
             free,
             nominal: Some((nominal_occ, nominal_free)),
+            far_edge_q8: 0,
         })
     }
 
@@ -223,17 +258,32 @@ impl InverseSensorModel {
 /// max F1 0.9591 / 0.9612 / 0.9610 (docs/results.md, "Face band").
 pub const FACE_BAND_REACH_EIGHTHS: u8 = 12;
 
-/// `Φ(q / 8)` in Q15 for `q = 0 ..= FACE_BAND_REACH_EIGHTHS`: the standard normal distribution
-/// function, `round(32768 · ½ erfc(−q / (8√2)))` (generated with Python's `math.erfc`; the f64
-/// reference mapper computes it with `libm::erfc` and `reference` tests the two agree).
-/// `Φ(−t) = 1 − Φ(t)`.
-pub const PHI_EIGHTHS_Q15: [u16; FACE_BAND_REACH_EIGHTHS as usize + 1] = [
+/// How far past the reading, in eighths of σ, a face band cell's offset can lie: the band's
+/// reach [`FACE_BAND_REACH_EIGHTHS`] plus the far edge's half step
+/// ([`InverseSensorModel::with_far_edge`]; a step is at most 32 eighths, the mapper's cap).
+/// Offsets before the reading stay clamped at −[`FACE_BAND_REACH_EIGHTHS`].
+pub const FACE_BAND_FAR_EIGHTHS: u8 = FACE_BAND_REACH_EIGHTHS + 16;
+
+/// `Φ(q / 8)` in Q15 for `q = 0 ..=` [`FACE_BAND_FAR_EIGHTHS`]: the standard normal
+/// distribution function, `round(32768 · ½ erfc(−q / (8√2)))` (generated with Python's
+/// `math.erfc`; the f64 reference mapper computes it with `libm::erfc` and `reference` tests
+/// the two agree). `Φ(−t) = 1 − Φ(t)`. Entries past [`FACE_BAND_REACH_EIGHTHS`] are read only
+/// with a far edge.
+pub const PHI_EIGHTHS_Q15: [u16; FACE_BAND_FAR_EIGHTHS as usize + 1] = [
     16384, 18014, 19618, 21174, 22658, 24052, 25342, 26516, 27569, 28499, 29306, 29997, 30579,
+    31061, 31455, 31772, 32023, 32218, 32367, 32480, 32565, 32626, 32670, 32702, 32724, 32739,
+    32749, 32756, 32760,
 ];
 
-/// `Φ(t8 / 8)` in Q15 for `|t8| ≤` [`FACE_BAND_REACH_EIGHTHS`] (clamped there).
+/// `Φ(t8 / 8)` in Q15 for `−`[`FACE_BAND_REACH_EIGHTHS`]` ≤ t8 ≤ `[`FACE_BAND_FAR_EIGHTHS`]
+/// (clamped there).
 pub fn phi_eighths_q15(t8: i8) -> u16 {
-    let q = usize::from(t8.unsigned_abs()).min(usize::from(FACE_BAND_REACH_EIGHTHS));
+    let far = if t8 >= 0 {
+        FACE_BAND_FAR_EIGHTHS
+    } else {
+        FACE_BAND_REACH_EIGHTHS
+    };
+    let q = usize::from(t8.unsigned_abs()).min(usize::from(far));
     let p = PHI_EIGHTHS_Q15.get(q).copied().unwrap_or(1 << 15);
     if t8 >= 0 {
         p
@@ -275,8 +325,32 @@ mod tests {
             );
         }
         assert_eq!(face_band_delta(occ, free, 12), 887);
-        assert_eq!(face_band_delta(occ, free, 100), 887);
+        assert_eq!(face_band_delta(occ, free, -12), -887);
+        assert_eq!(face_band_delta(occ, free, -100), -887);
+        // Past the reach (only a far edge's shift gets there): Φ itself, up to 3.5 σ.
+        for t in 12i8..28 {
+            assert!(face_band_delta(occ, free, t) <= face_band_delta(occ, free, t + 1));
+        }
+        assert_eq!(face_band_delta(occ, free, 20), 1011);
+        assert_eq!(face_band_delta(occ, free, 28), 1024);
+        assert_eq!(face_band_delta(occ, free, 100), 1024);
         assert!(InverseSensorModel::hahnel_face_band(0).is_err());
+    }
+
+    #[test]
+    fn far_edge_only_on_a_face_band() {
+        let band = InverseSensorModel::hahnel_face_band(150).unwrap();
+        assert_eq!(band.far_edge_q8(), 0);
+        let far = band.with_far_edge(256).unwrap();
+        assert_eq!(far.far_edge_q8(), 256);
+        assert_eq!(far.kind(), band.kind());
+        assert_eq!(band.with_far_edge(257), Err(Error::InvalidModel));
+        assert_eq!(
+            InverseSensorModel::hahnel().with_far_edge(10),
+            Err(Error::InvalidModel)
+        );
+        // A new band width starts without it.
+        assert_eq!(far.with_face_band(100).unwrap().far_edge_q8(), 0);
     }
 
     #[test]

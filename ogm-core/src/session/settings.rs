@@ -13,11 +13,15 @@ impl RunConfig {
     /// `free_update_q8` and, with `face_band`, the band of σ = `sigma_milli_cells`; default
     /// clamp. [`crate::Error::InvalidModel`] if the scale is out of range or σ rounds to 0 mm.
     pub fn mapper_config(&self) -> Result<MapperConfig> {
-        // Integer only: the firmware builds it (`with_free_scale` may take f64 arithmetic).
         let model = InverseSensorModel::hahnel_free_scaled(self.free_update_q8)?;
         let model = if self.face_band {
             let sigma_mm = u64::from(self.sigma_milli_cells) * u64::from(self.cell_mm) / 1000;
-            model.with_face_band(u32::try_from(sigma_mm).unwrap_or(u32::MAX))?
+            // The far edge is 0 for a band of 3 cells or more (the firmware's default); a
+            // narrower band (`RunConfig::with_sensor`) takes f64 arithmetic here, once per
+            // configuration, the same on the board and the host.
+            model
+                .with_face_band(u32::try_from(sigma_mm).unwrap_or(u32::MAX))?
+                .with_far_edge(self.band_far_edge_q8())?
         } else {
             model
         };
@@ -40,7 +44,7 @@ impl RunConfig {
 
     /// The sampler settings. The initial sample uses [`SamplerConfig`]'s default threshold
     /// (−1 LSB: never-observed cells start occupied); online, cells are seeded from their
-    /// log-odds when first observed ([`crate::session::pipeline::insert_and_seed`]).
+    /// log-odds when first observed ([`crate::session::Session::insert`]).
     pub fn sampler_config(&self) -> SamplerConfig {
         SamplerConfig {
             // f32 arithmetic: the Cortex-M4F has it in hardware (f64 would be ~2.6 KiB of
@@ -70,16 +74,53 @@ mod tests {
     use crate::config::Budget;
     use crate::LogOdds;
 
+    /// A session's mapper gets the far edge of a band narrower than 3 cells (what eval-log's
+    /// robot mode maps with), and none at the firmware's σ = 3 cells.
+    #[test]
+    fn a_narrow_band_keeps_its_far_edge() {
+        let narrow = RunConfig::ROBOT.with_sensor(1.5, 0.0).unwrap();
+        assert!(narrow.face_band);
+        let far = narrow.band_far_edge_q8();
+        assert!(far > 0 && far < 256, "{far}");
+        let sigma_mm = narrow.sigma_milli_cells * narrow.cell_mm / 1000;
+        let want = InverseSensorModel::hahnel()
+            .with_face_band(sigma_mm)
+            .and_then(|m| m.with_far_edge(far))
+            .unwrap();
+        assert_eq!(narrow.mapper_config().unwrap().model, want);
+        assert_eq!(RunConfig::ROBOT.band_far_edge_q8(), 0);
+    }
+
     #[test]
     fn config_builds_the_models() {
-        let c = RunConfig::paper((-6400, -6400), 3750, 7, Budget::Fixed { updates: 100 });
+        let budget = Budget::Fixed { updates: 100 };
+        let c = RunConfig::PAPER
+            .with_origin_mm(-6400, -6400)
+            .with_max_range_mm(3750)
+            .with_seed(7)
+            .with_budget(budget);
         let g = c.geometry(256, 256).unwrap();
         assert_eq!(g.origin_mm(), (-6400, -6400));
         assert_eq!(c.mapper_config(), Ok(MapperConfig::new(3750)));
-        let robot = RunConfig::robot((0, 0), 3750, 7, Budget::Fixed { updates: 100 });
+        let robot = RunConfig::ROBOT
+            .with_max_range_mm(3750)
+            .with_seed(7)
+            .with_budget(budget);
+        // The constant is the robot's noise matching at its own σ.
+        assert_eq!(robot, robot.with_noise_matched(3.0));
+        // The default: the robot's, at the origin, an LD06's range and turn, seed 1.
+        let d = RunConfig::default();
+        assert_eq!(d, RunConfig::ROBOT);
         assert_eq!(
-            robot,
-            RunConfig::robot_at_paper_sigma((0, 0), 3750, 7, Budget::Fixed { updates: 100 })
+            (d.origin_x_mm, d.origin_y_mm, d.max_range_mm, d.seed),
+            (0, 0, 12_000, 1)
+        );
+        assert_eq!(
+            d.budget,
+            Budget::Time {
+                period_us: 100_000,
+                max_updates: u32::MAX
+            }
         );
         // σ = 3 cells of 50 mm: the face band, the evidence as it is.
         assert!(robot.face_band);

@@ -23,7 +23,7 @@ pub struct Beam {
     pub range: Range,
 }
 
-/// A bounded buffer for one scan, filled by a range sensor ([`crate::lidar::source::RangeSensor`]). Beams beyond the capacity `N`
+/// A bounded buffer for one scan, filled by a lidar reader or a turn. Beams beyond the capacity `N`
 /// are dropped and counted, never written out of bounds.
 #[derive(Clone, Debug, Default)]
 pub struct ScanBuf<const N: usize> {
@@ -108,4 +108,21 @@ mod tests {
         s.clear();
         assert_eq!((s.beams().len(), s.overflow()), (0, 0));
     }
+}
+
+/// What inserting a scan did: the mapper's count, which the robot's scan report carries as it
+/// is ([`crate::wire::ScanReport::mapper`]).
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
+)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ScanStats {
+    /// Beams that were used.
+    pub beams_used: u32,
+    /// Beams dropped (closer than the minimum range).
+    pub beams_dropped: u32,
+    /// Cells that received the occupied update.
+    pub cells_hit: u32,
+    /// Cells that received the free update.
+    pub cells_freed: u32,
 }

@@ -6,6 +6,7 @@ use super::ranges::ScanRanges;
 use super::tile::Tile;
 use crate::config::RunConfig;
 use crate::types::geometry::Pose;
+use crate::types::scan::ScanStats;
 
 /// Device → host.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -78,14 +79,8 @@ pub struct ScanReport {
     pub beams: u32,
     /// Beams that did not fit the scan buffer.
     pub beams_overflowed: u32,
-    /// Mapper: beams used.
-    pub beams_used: u32,
-    /// Mapper: beams dropped (closer than the minimum range).
-    pub beams_dropped: u32,
-    /// Mapper: cells given the occupied update.
-    pub cells_hit: u32,
-    /// Mapper: cells given the free update.
-    pub cells_freed: u32,
+    /// What the mapper did (on the wire: its four counts in place, as before).
+    pub mapper: ScanStats,
     /// Rays the ray store kept from this scan.
     pub rays_stored: u32,
     /// Sampler patch updates run after this scan (the host replays exactly this many).

@@ -79,19 +79,18 @@ impl ListenArgs {
     }
 }
 
-/// The default settings for `--default-config`: the robot's (`RunConfig::robot`) on a grid
+/// The default settings for `--default-config`: the robot's (`RunConfig::ROBOT`) on a grid
 /// centred on the world origin (the robot's start), LD06 range 12 m, seed 1, the time budget of
 /// `host-sim firmware` (6.4 ms of board time per scan, at most 20 000 updates).
 pub fn default_config() -> RunConfig {
     let cell_mm = 50;
     let half = |n: u16| -(i32::from(n) * cell_mm / 2);
-    RunConfig::robot(
-        (half(FW.width), half(FW.height)),
-        12_000,
-        1,
-        Budget::Time {
+    RunConfig::ROBOT
+        .with_origin_mm(half(FW.width), half(FW.height))
+        .with_max_range_mm(12_000)
+        .with_seed(1)
+        .with_budget(Budget::Time {
             period_us: 6400,
             max_updates: 20_000,
-        },
-    )
+        })
 }

@@ -45,6 +45,19 @@ pub struct SamplingConfig {
     /// reads (`RunConfig::face_band`; the scans are mapped again with it).
     #[serde(default)]
     pub face_band: bool,
+    /// The face band's far-edge share, Q8 (`InverseSensorModel::with_far_edge`;
+    /// `RunConfig::band_far_edge_q8`).
+    #[serde(default)]
+    pub far_edge_q8: u16,
+    /// The range sensor's σ (cells) the robot's settings are made for
+    /// (`RunConfig::with_sensor`), where it differs from `sigma_cells` (the forward models'):
+    /// `eval-log` estimates the two differently ([`crate::eval::noise`]).
+    #[serde(default)]
+    pub sensor_sigma_cells: Option<f64>,
+    /// Share of hits that support no surface near their end, 0 ..= 1, for the robot's
+    /// settings (`RunConfig::with_sensor`; [`crate::eval::noise::NoiseEstimate::sensor`]).
+    #[serde(default)]
+    pub outlier_share: f64,
     /// Offer the evidence's configuration as a candidate.
     pub data_candidate: bool,
     /// Marginal estimator.
@@ -72,6 +85,9 @@ impl Default for SamplingConfig {
             evidence_free_q8: 256,
             free_update_q8: 256,
             face_band: false,
+            far_edge_q8: 0,
+            sensor_sigma_cells: None,
+            outlier_share: 0.0,
             data_candidate: false,
             estimator: Estimator::Counts,
             hot_share: 0,
@@ -80,8 +96,18 @@ impl Default for SamplingConfig {
 }
 
 impl SamplingConfig {
+    /// The sensor the robot's settings are made for: σ (cells; `sensor_sigma_cells`, else
+    /// `sigma_cells`) and the share of hits without evidence.
+    pub fn sensor(&self) -> (f64, f64) {
+        (
+            self.sensor_sigma_cells.unwrap_or(self.sigma_cells),
+            self.outlier_share,
+        )
+    }
+
     /// The inverse model of the map the evidence term reads: `mapper`'s with the free update
-    /// scaled by `free_update_q8` and, with `face_band`, the band of σ = `sigma_cells`.
+    /// scaled by `free_update_q8` and, with `face_band`, the band of σ = `sigma_cells` and
+    /// far edge `far_edge_q8`.
     pub fn evidence_model(
         &self,
         geometry: &GridGeometry,
@@ -102,6 +128,7 @@ impl SamplingConfig {
             self.sigma_cells
         );
         let band = InverseSensorModel::hahnel_face_band(sigma_mm as u32)
+            .and_then(|b| b.with_far_edge(self.far_edge_q8))
             .map_err(|e| anyhow!("face band: {e}"))?;
         band.with_free_scale(q8)
             .map_err(|e| anyhow!("free update scale {q8}: {e}"))

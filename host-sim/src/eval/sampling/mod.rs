@@ -1,6 +1,6 @@
 //! Runs `ogm_core::sampler::gibbs` on a recorded dataset, with host-sized (or firmware-sized) buffers:
 //! the paper's Table I/II variants and the robot's own sampler. `gibbs_l9_border` is always the
-//! firmware's default mode (`RunConfig::robot`: per-cell evidence, the evidence's configuration
+//! firmware's default mode (`RunConfig::ROBOT`: per-cell evidence, the evidence's configuration
 //! as a candidate, averaged draws); `gibbs_l9_border_rays` is the paper's (the forward model
 //! over every stored ray, sample counts), `gibbs_l9_border_hybrid` the robot's sampler with
 //! the rays still in the store plus the evidence of what it dropped; `gibbs_l9_border_mean` the

@@ -72,24 +72,28 @@ impl Variant {
         }
     }
 
-    /// `cfg` with this variant's data term and estimator: the robot's (`RunConfig::robot`,
-    /// free evidence and the evidence map's free update matched to `cfg.sigma_cells`) for
+    /// `cfg` with this variant's data term and estimator: the robot's (`RunConfig::ROBOT` made
+    /// for the sensor of `cfg.sensor()` by `RunConfig::with_sensor`: its face band, far edge and
+    /// evidence gain) for
     /// [`Variant::L9Border`] and [`Variant::L9BorderHybrid`] ([`Variant::L9BorderMean`]: the
     /// robot's with sample counts), the paper's (rays, sample counts) for the others (for
     /// [`Variant::L25`] only the rays are implemented).
     pub fn configure(self, cfg: &SamplingConfig) -> SamplingConfig {
         match self {
             Variant::L9Border | Variant::L9BorderHybrid | Variant::L9BorderMean => {
-                // The robot's settings at this data set's σ: the face band, or the split free
-                // update and the 1/σ evidence gain.
-                let robot = ogm_core::config::RunConfig::robot(
-                    (0, 0),
-                    1,
-                    0,
-                    ogm_core::config::Budget::Fixed { updates: 0 },
-                )
-                .with_noise_matched(cfg.sigma_cells);
+                // The robot's settings for this data set's sensor. σ and τ are checked where
+                // they are set (the options, the noise estimate); the robot's default otherwise.
+                let base = ogm_core::config::RunConfig::ROBOT;
+                let (sigma, tau) = cfg.sensor();
+                let robot = base.with_sensor(sigma, tau).unwrap_or(base);
                 SamplingConfig {
+                    // The band's σ, where there is one: what the robot's mapper reads.
+                    sigma_cells: if robot.face_band {
+                        f64::from(robot.sigma_milli_cells) / 1000.0
+                    } else {
+                        cfg.sigma_cells
+                    },
+                    far_edge_q8: robot.band_far_edge_q8(),
                     data: if self == Variant::L9BorderHybrid {
                         DataTerm::Hybrid
                     } else {

@@ -1,12 +1,12 @@
 //! [`RplidarReader`]: whole turns read from any [`embedded_io::Read`].
 
 use super::parser::{Event, RplidarCounters, RplidarParser, LOCK_NODES};
-use crate::lidar::source::{RangeSensor, ReadError};
+use crate::lidar::source::ReadError;
 use crate::types::angle::Angle;
 use crate::types::scan::{Beam, Range, ScanBuf};
 
 /// A blocking RPLIDAR driver over any [`embedded_io::Read`] (a UART on the robot, a byte slice or
-/// a pipe on the host): implements [`RangeSensor`] by assembling one full 360° turn per scan. The
+/// a pipe on the host): [`RplidarReader::read_scan`] assembles one full 360° turn per scan. The
 /// caller starts the stream by writing [`REQ_SCAN`] to the sensor (after [`REQ_STOP`] and a
 /// 1 ms pause if it may already be scanning); the reader only reads.
 ///
@@ -91,10 +91,13 @@ impl<R: embedded_io::Read> RplidarReader<R> {
     }
 }
 
-impl<R: embedded_io::Read> RangeSensor for RplidarReader<R> {
-    type Error = ReadError<R::Error>;
-
-    fn read_scan<const N: usize>(&mut self, scan: &mut ScanBuf<N>) -> Result<(), Self::Error> {
+impl<R: embedded_io::Read> RplidarReader<R> {
+    /// Blocks until the next complete scan (one full 360° turn) has been read and writes it into
+    /// `scan`, which it clears first; beams beyond `scan`'s capacity are counted as its overflow.
+    pub fn read_scan<const N: usize>(
+        &mut self,
+        scan: &mut ScanBuf<N>,
+    ) -> Result<(), ReadError<R::Error>> {
         scan.clear();
         // A carry always starts with the start node that ended the previous scan.
         let mut in_scan = self.n_carry > 0;

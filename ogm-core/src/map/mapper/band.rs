@@ -5,16 +5,19 @@
 use super::update::Update;
 use super::MapperConfig;
 use crate::map::ray::{Ray, Steps};
-use crate::map::sensor_model::{face_band_delta, InverseModelKind, FACE_BAND_REACH_EIGHTHS};
+use crate::map::sensor_model::{
+    face_band_delta, InverseModelKind, FACE_BAND_FAR_EIGHTHS, FACE_BAND_REACH_EIGHTHS,
+};
 use crate::types::geometry::CellCoord;
 
-/// The face band's geometry: σ and the band's half-width in mm, and the half-width in eighths
-/// of σ, Q16.
+/// The face band's geometry: σ and the band's half-width in mm, the half-width in eighths
+/// of σ, Q16, and the model's far-edge share (Q8, ≤ 256).
 #[derive(Clone, Copy)]
 pub(super) struct Band {
     sigma_mm: u32,
     pub(super) reach_mm: u32,
     pub(super) reach_t: i64,
+    far_edge_q8: u64,
 }
 
 impl Band {
@@ -28,6 +31,7 @@ impl Band {
                     reach_mm,
                     // 8·reach/σ ≤ 12, in Q16.
                     reach_t: ((u64::from(reach_mm) << 19) / u64::from(sigma_mm)) as i64,
+                    far_edge_q8: u64::from(cfg.model.far_edge_q8().min(256)),
                 })
             }
             _ => None,
@@ -66,6 +70,15 @@ impl Band {
         let den = u64::from(self.sigma_mm).saturating_mul(n.max(1));
         div_u64(u64::from(traced) << 19, den.max(1), false).min(1 << 21)
     }
+
+    /// How much further on than its sample point every cell's offset is taken, in eighths of
+    /// σ, Q16, on a ray whose steps are `dt` apart: the model's far-edge share of half a step
+    /// (`InverseSensorModel::with_far_edge`); ≤ 2^20 (dt ≤ 2^21, share ≤ 1). 0 without a far
+    /// edge, so the offsets are the band's as before.
+    #[inline]
+    pub(super) fn far_shift(&self, dt: u64) -> i64 {
+        (dt.min(1 << 21) * self.far_edge_q8 / 512) as i64
+    }
 }
 
 /// One reading's face band on its ray: the band's steps in the grid, and the offset past the
@@ -91,15 +104,22 @@ impl BandRay {
     }
 
     /// Step `k`'s (`k ≥ steps.first`) offset past the reading in eighths of σ, rounded half
-    /// away from zero, clamped to the band: one multiply-add per cell, no division.
+    /// away from zero, clamped to `−R ..= F` (R = [`FACE_BAND_REACH_EIGHTHS`], F =
+    /// [`FACE_BAND_FAR_EIGHTHS`]; only a far edge's shift takes an offset past R): one
+    /// multiply-add per cell, no division.
     #[inline]
     pub(super) fn eighths(&self, k: u64) -> i8 {
         // Fewer than 2^20 in-grid steps (the grid is under 2^16 cells a side), dt ≤ 2^21 and
         // |t0| ≤ 2^41: no overflow.
         let j = k.saturating_sub(self.steps.first).min(1 << 20) as i64;
         let t = self.t0 + j * self.dt;
-        let r = ((t.unsigned_abs() + (1 << 15)) >> 16).min(u64::from(FACE_BAND_REACH_EIGHTHS));
-        // r ≤ 12.
+        let cap = if t < 0 {
+            FACE_BAND_REACH_EIGHTHS
+        } else {
+            FACE_BAND_FAR_EIGHTHS
+        };
+        let r = ((t.unsigned_abs() + (1 << 15)) >> 16).min(u64::from(cap));
+        // r ≤ 28.
         if t < 0 {
             -(r as i8)
         } else {
@@ -109,7 +129,7 @@ impl BandRay {
 }
 
 /// The face table slot ([`face_deltas`]) of an offset `t` in eighths of σ, Q16, on a band
-/// (`−36·2^16 ≤ t ≤ 12·2^16`, [`Rays::band`]): [`BandRay::eighths`]'s rounding half away from
+/// (`−36·2^16 ≤ t ≤ 28·2^16`, [`Rays::band`]): [`BandRay::eighths`]'s rounding half away from
 /// zero, + [`FACE_LOW`]; the table holds the clamp, so none is needed here.
 ///
 /// [`Rays::band`]: super::rays::Rays::band
@@ -124,18 +144,22 @@ pub(super) fn face_slot(t: i32) -> usize {
 /// [`FACE_BAND_REACH_EIGHTHS`] as an `i32`.
 const FACE_REACH: i32 = FACE_BAND_REACH_EIGHTHS as i32;
 
+/// [`FACE_BAND_FAR_EIGHTHS`] as an `i32`.
+const FACE_FAR: i32 = FACE_BAND_FAR_EIGHTHS as i32;
+
 /// How far before the reading, in eighths of σ, the face table reaches: a band's offsets lie
 /// within `−36 ..= R` eighths ([`Rays::band`]); those before `−R` get the update of `−R`.
 ///
 /// [`Rays::band`]: super::rays::Rays::band
 pub(super) const FACE_LOW: i32 = 40;
 
-/// The face band's updates by eighths of σ past the reading, `−FACE_LOW ..= R` (clamped to
-/// `−R ..= R`), once per scan: a band walk looks each cell's up without a clamp.
-pub(super) fn face_deltas(update: &Update) -> [i32; (FACE_LOW + FACE_REACH + 1) as usize] {
+/// The face band's updates by eighths of σ past the reading, `−FACE_LOW ..= F` (clamped to
+/// `−R ..= F`; past R only with a far edge), once per scan: a band walk looks each cell's up
+/// without a clamp.
+pub(super) fn face_deltas(update: &Update) -> [i32; (FACE_LOW + FACE_FAR + 1) as usize] {
     core::array::from_fn(|j| {
-        // |j − FACE_LOW| ≤ 40 and then ≤ R = 12: fits an i8.
-        let t8 = (j as i32 - FACE_LOW).clamp(-FACE_REACH, FACE_REACH);
+        // |j − FACE_LOW| ≤ 40 and then within −12 ..= 28: fits an i8.
+        let t8 = (j as i32 - FACE_LOW).clamp(-FACE_REACH, FACE_FAR);
         face_band_delta(update.occ, update.free, t8 as i8)
     })
 }
@@ -165,9 +189,10 @@ mod tests {
         /// The band walk's 32-bit face slot finds the update of `BandRay::eighths`'s rounded
         /// and clamped offset, over a band's range of offsets.
         #[test]
-        fn face_slot_matches_eighths(t in prop_oneof![(-36i32..=24).prop_map(|k| k << 15),
-                -(36i32 << 16)..=(12 << 16)], occ in 1i32..2000, free in -2000i32..0) {
-            let r = ((u64::from(t.unsigned_abs()) + (1 << 15)) >> 16).min(12) as i8;
+        fn face_slot_matches_eighths(t in prop_oneof![(-72i32..=56).prop_map(|k| k << 15),
+                -(36i32 << 16)..=(28 << 16)], occ in 1i32..2000, free in -2000i32..0) {
+            let cap = if t < 0 { 12 } else { 28 };
+            let r = ((u64::from(t.unsigned_abs()) + (1 << 15)) >> 16).min(cap) as i8;
             let want = face_band_delta(occ, free, if t < 0 { -r } else { r });
             let update = Update { occ, free, min: -30_000, max: 30_000 };
             prop_assert_eq!(face_deltas(&update).get(face_slot(t)).copied(), Some(want));

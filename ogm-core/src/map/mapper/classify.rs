@@ -47,7 +47,8 @@ pub enum CellUpdate {
     /// Free (`l_free − l₀`).
     Free,
     /// In a reading's face band ([`InverseModelKind::FaceBand`]), this many eighths of σ past
-    /// the reading (within ±[`crate::map::sensor_model::FACE_BAND_REACH_EIGHTHS`]):
+    /// the reading (from −[`crate::map::sensor_model::FACE_BAND_REACH_EIGHTHS`] to
+    /// [`crate::map::sensor_model::FACE_BAND_FAR_EIGHTHS`], past the reach only with a far edge):
     /// `Φ(t)·(l_occ − l₀) + (1 − Φ(t))·(l_free − l₀)`.
     Face(i8),
 }

@@ -403,11 +403,12 @@ mod tests {
                                               start in prop::collection::vec(any::<i16>(), 16),
                                               p_occ in 0.55f64..0.97, p_free in 0.03f64..0.45,
                                               wide_clamp in any::<bool>(),
-                                              band in prop::option::of((1u32..400, 1u16..=256))) {
+                                              band in prop::option::of((1u32..400, 1u16..=256, 0u16..=256))) {
             let mut cfg = MapperConfig::new(max_range.max(min_range + 1));
             cfg.min_range_mm = min_range;
             cfg.model = match band {
-                Some((sigma, q8)) => InverseSensorModel::hahnel_face_band(sigma).unwrap().with_free_scale(q8).unwrap(),
+                Some((sigma, q8, far)) => InverseSensorModel::hahnel_face_band(sigma).unwrap()
+                    .with_far_edge(far).unwrap().with_free_scale(q8).unwrap(),
                 None => InverseSensorModel::beam(p_occ, p_free, 0.5).unwrap(),
             };
             if wide_clamp {
@@ -424,7 +425,7 @@ mod tests {
                                             n in 8usize..400, jitter in prop::collection::vec(0u16..200, 400),
                                             ranges in prop::collection::vec(prop_oneof![6 => 0u32..12_000, 1 => Just(u32::MAX)], 400),
                                             max_range in 500u32..10_000,
-                                            band in prop::option::of(1u32..300)) {
+                                            band in prop::option::of((1u32..300, 0u16..=256))) {
             let g = GridGeometry::new(w, h, cell, -1_000, 2_000).unwrap();
             let x = -1_000 + (fx * f64::from(w) * f64::from(cell)) as i32;
             let y = 2_000 + (fy * f64::from(h) * f64::from(cell)) as i32;
@@ -436,8 +437,8 @@ mod tests {
                 .collect();
             beams.sort_by_key(|b| b.angle.0);
             let mut cfg = MapperConfig::new(max_range);
-            if let Some(sigma) = band {
-                cfg.model = InverseSensorModel::hahnel_face_band(sigma).unwrap();
+            if let Some((sigma, far)) = band {
+                cfg.model = InverseSensorModel::hahnel_face_band(sigma).unwrap().with_far_edge(far).unwrap();
             }
             check_against_classification(g, cfg, (x, y, heading), &[beams.clone(), beams], &[3, -2000, 7000, 0])?;
         }

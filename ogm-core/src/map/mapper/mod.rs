@@ -108,7 +108,7 @@ where
     }
 
     /// [`Mapper::insert_scan`] that tells `listener` what it changes (see [`UpdateListener`]).
-    /// The online sampler listens this way ([`crate::session::pipeline::insert_and_seed`]).
+    /// The online sampler listens this way ([`crate::session::Session::insert`]).
     #[inline]
     pub fn insert_scan_into<L: UpdateListener>(
         &mut self,
@@ -224,16 +224,4 @@ impl MapperConfig {
     }
 }
 
-/// What a scan did.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct ScanStats {
-    /// Beams that were used.
-    pub beams_used: u32,
-    /// Beams dropped (closer than the minimum range).
-    pub beams_dropped: u32,
-    /// Cells that received the occupied update.
-    pub cells_hit: u32,
-    /// Cells that received the free update.
-    pub cells_freed: u32,
-}
+pub use crate::types::scan::ScanStats;

@@ -265,7 +265,7 @@ pub fn average_byte(m: u8, occupied: bool, shift: u8, u: u8) -> u8 {
     }
 }
 
-/// An averaging shift and what [`average_word`] derives from it: `s = min(shift, 7)`, the
+/// An averaging shift and what `average_word` derives from it: `s = min(shift, 7)`, the
 /// remainder mask `2^s − 1` and the quotient mask `0xFF >> s` in bytes 0..3.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct AverageShift {

@@ -18,7 +18,7 @@
 //!   [`SamplerConfig::max_candidates`] ≤ [`MAX_CANDIDATES`] are considered.
 //! * **Rays** are found through *tile visits*: the sampler picks a random tile (2^`tile_shift`
 //!   cells square), gathers the rays crossing it (plus the margin a patch reaches) into a bounded
-//!   local list indexed by 4×4 blocks ([`local`]), and then resamples patches centred in that
+//!   local list indexed by 4×4 blocks (module `local`), and then resamples patches centred in that
 //!   tile for a while. Every update is still an exact Gibbs step (all rays crossing the patch are
 //!   in the list), so the posterior is invariant; only the order of updates differs from a
 //!   uniform random scan. Rays that do not fit the local list are counted in
@@ -514,7 +514,7 @@ pub struct SamplerConfig {
     pub visit_sweeps: u8,
     /// Blocks per side of the tile visit's ray index (1 ..= [`MAX_BLOCK_GRID`]); the `blocks`
     /// buffer needs [`block_words`]`(local capacity, block_grid)` words. Finer is faster and
-    /// larger (see [`local`]).
+    /// larger (see module `local`).
     pub block_grid: u8,
     /// RNG seed.
     pub seed: u64,

@@ -1,5 +1,5 @@
 //! What the mapper tells a sampler that runs online (see
-//! [`crate::session::pipeline::insert_and_seed`]): the cells it observed for the first time,
+//! [`crate::session::Session::insert`]): the cells it observed for the first time,
 //! seeded into the sample, and the cells whose log-odds changed, which mark their tiles for a
 //! visit ([`super::schedule`]) and may restart their estimates.
 
@@ -33,7 +33,7 @@ where
 {
     /// Sets cell `index` of the current sample — for seeding cells the moment the mapper first
     /// observes them while the sampler runs online (see
-    /// [`crate::session::pipeline::insert_and_seed`]). The first-occupied caches of rays crossing the cell
+    /// [`crate::session::Session::insert`]). The first-occupied caches of rays crossing the cell
     /// are stale afterwards: call [`Gibbs::refresh_rays`] (once per scan is enough).
     pub fn seed(&mut self, index: usize, occupied: bool) {
         self.set_occupied(index, occupied);
@@ -52,7 +52,7 @@ where
     }
 
     /// Tells the sampler that a scan changed cell `index`'s log-odds from `before` to `now`
-    /// (what [`crate::session::pipeline::insert_and_seed`] does for every cell it updates): marks its
+    /// (what [`crate::session::Session::insert`] does for every cell it updates): marks its
     /// tile for a visit ([`SamplerConfig::hot_share`]) and, with [`Estimator::Average`]'s
     /// `reset_on_change`, restarts its estimate at `now`'s probability if the cell was
     /// unobserved (`before` = 0) or the sign of its evidence flipped. Evidence that only grew

@@ -55,7 +55,7 @@ where
 
     /// Marks the first-occupied caches of the rays in `range` stale, to be recomputed from the
     /// current sample when a tile visit next gathers them, and ends the current visit. O(rays)
-    /// writes and no ray walks: what [`crate::session::pipeline::insert_and_seed`] does after seeding, so
+    /// writes and no ray walks: what [`crate::session::Session::insert`] does after seeding, so
     /// a scan's ingest stays cheap and the walks happen inside the sampler's bounded steps.
     pub fn invalidate_rays<S, R>(
         &mut self,

@@ -1,0 +1,283 @@
+//! One step from the link, and the mapping of a scan or lidar turn: [`Session::insert`], the
+//! sampler for the rest of the scan period (its budget, [`Budget`]), the scan's report and
+//! tiles.
+
+use embedded_io::Write;
+use ogm_core::config::Budget;
+use ogm_core::lidar::link::Step;
+use ogm_core::lidar::turn::Turn;
+use ogm_core::session::{Session, Storage};
+use ogm_core::wire::{self, DeviceMsg, ErrorCode, IdleReport, ScanRanges, ScanReport};
+use ogm_core::Pose;
+
+use super::lidar::Lidar;
+use super::stream::mark_dirty;
+use super::{After, State};
+use crate::platform::{Platform, Work};
+
+/// Sampler updates in the first call of a time budget, and the fewest in any call after it.
+const CHUNK: u32 = 16;
+
+/// The most sampler updates in one call under a time budget (~1.6 M instructions): the clock
+/// is read at least this often.
+const MAX_CHUNK: u32 = 4096;
+
+impl<S: Storage> State<'_, S> {
+    /// A pose from the link: placed into the lidar's track; maps the turns it completes.
+    fn on_pose<W: Write, P: Platform>(
+        &mut self,
+        lidar: &mut Lidar<'_>,
+        link: &mut W,
+        platform: &mut P,
+        t_us: u64,
+        pose: Pose,
+    ) -> After {
+        if self.session.is_none() {
+            self.report_error(link, ErrorCode::NoConfig, 0);
+            return After::Nothing;
+        }
+        let mut after = After::Nothing;
+        let pushed = lidar.turns.push_pose(t_us, pose, lidar.turn, |turn| {
+            after = After::Scan(self.process_turn(link, platform, &turn));
+        });
+        if pushed.is_err() {
+            let ms = u32::try_from(t_us / 1000).unwrap_or(u32::MAX);
+            self.report_error(link, ErrorCode::PoseOrder, ms);
+        }
+        after
+    }
+
+    /// Maps a lidar turn like a host's scan; returns its number.
+    pub(super) fn process_turn<W: Write, P: Platform>(
+        &mut self,
+        link: &mut W,
+        platform: &mut P,
+        turn: &Turn<'_>,
+    ) -> u32 {
+        self.seq = turn.seq;
+        self.process_scan(link, platform, turn);
+        turn.seq
+    }
+
+    /// One step from the link.
+    pub(super) fn on_step<W: Write, P: Platform>(
+        &mut self,
+        step: Step<'_>,
+        lidar: &mut Lidar<'_>,
+        link: &mut W,
+        platform: &mut P,
+    ) -> After {
+        match step {
+            Step::Host(wire::HostMsg::Config(c)) => {
+                self.apply(lidar, link, platform, c);
+                After::Nothing
+            }
+            Step::Host(wire::HostMsg::Pose { t_us, pose }) => {
+                self.on_pose(lidar, link, platform, t_us, pose)
+            }
+            Step::Scan {
+                seq,
+                pose,
+                beams,
+                overflow,
+            } => {
+                self.seq = seq;
+                let scan = Turn {
+                    seq,
+                    pose,
+                    t_us: 0,
+                    beams,
+                    overflow,
+                };
+                self.process_scan(link, platform, &scan);
+                After::Scan(seq)
+            }
+            Step::Host(wire::HostMsg::Finish) => After::Finish,
+            Step::Host(wire::HostMsg::Idle { seq, period_us }) => {
+                self.idle(link, platform, seq, period_us);
+                After::Idle(seq)
+            }
+            // `LinkRx` turns the scan framing into `Step::Scan`; it never hands it on.
+            Step::Host(wire::HostMsg::ScanStart { .. } | wire::HostMsg::ScanEnd { .. }) => {
+                After::Nothing
+            }
+            Step::Error(e) => {
+                let (code, detail) = e.code();
+                self.report_error(link, code, detail);
+                After::Nothing
+            }
+        }
+    }
+
+    /// An idle period: the sampler alone for `period_us` of board time, then its report.
+    fn idle<W: Write, P: Platform>(
+        &mut self,
+        link: &mut W,
+        platform: &mut P,
+        seq: u32,
+        period_us: u32,
+    ) {
+        let Some(m) = self.session.as_deref_mut() else {
+            self.report_error(link, ErrorCode::NoConfig, 0);
+            return;
+        };
+        let t0 = platform.now();
+        let updates = match platform.fixed_updates(Work::Idle(seq)) {
+            Some(n) => m.step(n),
+            None => sample_until(m, platform, t0, period_us, u32::MAX),
+        };
+        let ticks = ticks(t0, platform.now());
+        self.totals.updates += u64::from(updates);
+        self.totals.sampler_ticks += u64::from(ticks);
+        info!(
+            "idle {=u32}: {=u32} sampler updates in {=u32} ticks",
+            seq, updates, ticks
+        );
+        self.send(
+            link,
+            &DeviceMsg::Idle(IdleReport {
+                seq,
+                sampler_updates: updates,
+                sampler_ticks: ticks,
+            }),
+        );
+    }
+
+    /// Ingests one scan: log-odds update with seeding, ray store, sampler, report, tiles.
+    pub(crate) fn process_scan<W: Write, P: Platform>(
+        &mut self,
+        link: &mut W,
+        platform: &mut P,
+        scan: &Turn<'_>,
+    ) {
+        let Turn {
+            seq,
+            ref pose,
+            t_us,
+            beams,
+            overflow,
+        } = *scan;
+        if overflow > 0 {
+            self.counters.beams_overflowed =
+                self.counters.beams_overflowed.saturating_add(overflow);
+            self.report_error(link, ErrorCode::ScanOverflow, overflow);
+        }
+        let Some(m) = self.session.as_deref_mut() else {
+            self.report_error(link, ErrorCode::NoConfig, 0);
+            return;
+        };
+        let mut report = ScanReport {
+            seq,
+            pose: *pose,
+            beams: beams.len() as u32,
+            beams_overflowed: overflow,
+            t_us,
+            ..ScanReport::default()
+        };
+        let t0 = platform.now();
+        // Log-odds update, seeding of the cells observed for the first time, ray store and
+        // first-occupied refresh in one step.
+        let inserted = m.insert(pose, beams);
+        let t1 = platform.now();
+        let updates = match platform.fixed_updates(Work::Scan(seq)) {
+            Some(n) => m.step(n),
+            None => run_budget(m, platform, t0),
+        };
+        let t2 = platform.now();
+        // `store_ticks` stays 0: the ray store and the cache refresh are inside `insert_ticks`.
+        (report.insert_ticks, report.sampler_ticks) = (ticks(t0, t1), ticks(t1, t2));
+        report.sampler_updates = updates;
+        match inserted {
+            Ok(inserted) => {
+                report.mapper = inserted.stats;
+                report.rays_stored = inserted.rays.len() as u32;
+                // The ray model changes nothing outside the box around the pose's cell and
+                // every beam's end cell (computed here, after the sampler's budget).
+                let (lo, hi) = inserted.changed_box();
+                mark_dirty(&mut self.dirty, (lo.x, lo.y), (hi.x, hi.y));
+            }
+            Err(e) => {
+                error!("scan {=u32}: mapper: {}", seq, e);
+                self.report_error(link, ErrorCode::Map, 0);
+            }
+        }
+        self.counters.scans = self.counters.scans.saturating_add(1);
+        let t = &mut self.totals;
+        t.scans += 1;
+        t.beams += u64::from(report.beams);
+        t.cells += u64::from(report.mapper.cells_hit + report.mapper.cells_freed);
+        t.insert_ticks += u64::from(report.insert_ticks);
+        t.max_insert_ticks = t.max_insert_ticks.max(report.insert_ticks);
+        t.sampler_ticks += u64::from(report.sampler_ticks);
+        t.updates += u64::from(updates);
+        info!(
+            "scan {=u32}: {=u32} beams, {=u32} cells, {=u32} rays stored in {=u32} ticks; {=u32} sampler updates in {=u32} ticks",
+            seq,
+            report.beams,
+            report.mapper.cells_hit + report.mapper.cells_freed,
+            report.rays_stored,
+            report.insert_ticks,
+            updates,
+            report.sampler_ticks
+        );
+        self.send(link, &DeviceMsg::Scan(report));
+        // What the lidar saw, for a live view: 360 bytes, every scan.
+        let mut ranges = [0u8; wire::SCAN_RANGES_LEN];
+        wire::encode_ranges(beams, &mut ranges);
+        self.send(link, &DeviceMsg::Ranges(ScanRanges { seq, data: &ranges }));
+        self.stream_tiles(link, false);
+    }
+}
+
+fn ticks(t0: u32, t1: u32) -> u32 {
+    t1.wrapping_sub(t0)
+}
+
+/// Sampler updates for one scan under the run's budget; `t0` = when the scan was complete.
+fn run_budget<S: Storage, P: Platform>(m: &mut Session<S>, platform: &P, t0: u32) -> u32 {
+    match m.config().budget {
+        Budget::Fixed { updates } => m.step(updates),
+        Budget::Time {
+            period_us,
+            max_updates,
+        } => sample_until(m, platform, t0, period_us, max_updates),
+    }
+}
+
+/// Sampler updates until `period_us` of board time after `t0` or `max_updates`, whichever comes
+/// first; returns how many.
+///
+/// Each call re-reads the sampler's window (its segment's rows, ~400 instructions), so calls
+/// of [`CHUNK`] updates cost ~10 % more per update than the sampler's own rate; after the first
+/// call, each asks for the updates that fit in half of the time left at the rate measured so
+/// far (at least [`CHUNK`], at most [`MAX_CHUNK`]): about a dozen calls per budget, and the
+/// period is overrun by at most one call's worth of the rate's error.
+fn sample_until<S: Storage, P: Platform>(
+    m: &mut Session<S>,
+    platform: &P,
+    t0: u32,
+    period_us: u32,
+    max_updates: u32,
+) -> u32 {
+    // Ticks fit a u32 for periods up to 171 s at 25 MHz; longer ones are cut there.
+    let period =
+        (u64::from(period_us) * u64::from(P::TICK_HZ) / 1_000_000).min(u64::from(u32::MAX)) as u32;
+    let start = platform.now();
+    let mut done = 0u32;
+    loop {
+        let now = platform.now();
+        let elapsed = now.wrapping_sub(t0);
+        if done >= max_updates || elapsed >= period {
+            return done;
+        }
+        // Ticks per update so far (in 32 bits: no 64-bit division in the image); none before
+        // the first call returns. elapsed < period, so the time left is positive.
+        let n = match now.wrapping_sub(start).checked_div(done) {
+            Some(per_update) => {
+                ((period - elapsed) / per_update.max(1).saturating_mul(2)).clamp(CHUNK, MAX_CHUNK)
+            }
+            None => CHUNK,
+        };
+        done += m.step(n.min(max_updates - done));
+    }
+}

@@ -1,0 +1,250 @@
+//! `host-sim firmware --log FILE [--experiment N] --out DIR`: a real laser log through the
+//! firmware in QEMU ([`super::log`] encodes it), checked bit-exact against the host replay, and
+//! what the robot mapped written out and scored like `eval-log`.
+//!
+//! The robot's grid is its board's (256 × 256 cells of 5 cm on the QEMU board), centred on the
+//! log's first pose and aligned with `eval-log`'s grid of the same log, so its cells are
+//! `eval-log`'s cells: every figure is over the cells the robot's grid covers, against the
+//! benchmark made from all of the log's scans (the `coverage` says how much of the benchmark's
+//! mapped cells that is). Rays beyond the robot's grid are clipped by its mapper.
+//!
+//! `DIR/map.yaml` (+ `.pgm`, `.png`: map_server conventions, unknown cells unknown) is the
+//! robot's sampler map as `export --stream` makes it from the captured stream, `DIR/map-log-odds.yaml`
+//! its log-odds map; `DIR/report.json` the run's report, the encoding and the scores;
+//! `DIR/stream.bin`, `input.bin`, `lidar.bin` the bytes.
+
+use std::path::Path;
+
+use anyhow::{ensure, Context};
+use ogm_core::config::{Budget, RunConfig};
+use ogm_core::GridGeometry;
+use ogm_field::world::load::{DEFAULT_FREE_THRESH, DEFAULT_OCCUPIED_THRESH};
+use ogm_field::world::{Truth, World};
+use serde::Serialize;
+
+use super::args::FirmwareArgs;
+use super::groups::{decode_captured, Groups};
+use super::log::{log_config, log_input, mount_heading, LogEncoding};
+use super::replay::{marginals, replay, sizes_of, FIRMWARE_SIZES};
+use super::report::FirmwareReport;
+use super::run::run_input;
+use crate::eval::eval_log::{
+    benchmark_truth, map_scans, setup_log, Experiment, LogMapArgs, BENCHMARK_THRESHOLD,
+    NEAR_MAPPED_CELLS,
+};
+use crate::eval::metrics::{mask_within, PrAccumulator, Summary};
+use crate::sim::probabilities;
+
+/// `DIR/report.json` of a `--log` run.
+#[derive(Clone, Debug, Serialize)]
+pub struct LogRunReport {
+    /// The log as given.
+    pub log: String,
+    /// The experiment (Table III: 1 = every 2nd beam, 2 = every 2nd pose and beam, 3 = every
+    /// 10th pose and 2nd beam; 0 = every scan and beam).
+    pub experiment: u8,
+    /// How the scans were sent.
+    pub encoding: LogEncoding,
+    /// The sensor the settings were made for (σ cells, τ), estimated from the experiment's
+    /// data as `eval-log` does; `None`: too few hits, the robot's defaults.
+    pub sensor: Option<(f64, f64)>,
+    /// The settings the robot ran with.
+    pub config: RunConfig,
+    /// The robot's grid: cells wide and tall, and where it lies in `eval-log`'s grid of the
+    /// log (cell offset of its lower-left corner).
+    pub grid: (u16, u16),
+    /// Offset of the robot's grid in `eval-log`'s grid, cells.
+    pub offset_cells: (i64, i64),
+    /// Share of the benchmark's mapped cells that the robot's grid covers.
+    pub coverage: f64,
+    /// F1 near mapped (`eval-log`'s protocol) of the robot's log-odds map (`traditional`) and
+    /// its sampler map (`gibbs_l9_border`), over the robot's grid.
+    pub near_mapped: Vec<(String, Summary)>,
+    /// The run: QEMU against the replay.
+    pub firmware: FirmwareReport,
+}
+
+/// Runs `path` through the firmware (see the module docs).
+pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Result<LogRunReport> {
+    let out = args
+        .out
+        .as_ref()
+        .context("--log needs --out DIR (the map and the report go there)")?;
+    let setup = setup_log(path, &LogMapArgs::default())?;
+    let exp = Experiment::new(experiment)?;
+    let mut scans = exp.select(&setup.scans);
+    if let Some(n) = args.max_scans {
+        scans.truncate(n);
+    }
+    ensure!(!scans.is_empty(), "{}: no scans to send", path.display());
+    let g = setup.geometry;
+    let fw = FIRMWARE_SIZES;
+    let cell = i64::from(g.cell_mm());
+    // The robot's grid, centred on the first pose, on eval-log's lattice.
+    let p0 = scans[0].pose;
+    let offset = |o: i32, p: i32, n: u16| {
+        ((i64::from(p) - i64::from(o)).div_euclid(cell)) - i64::from(n) / 2
+    };
+    let off = (
+        offset(g.origin_mm().0, p0.x_mm, fw.width),
+        offset(g.origin_mm().1, p0.y_mm, fw.height),
+    );
+    let origin = |o: i32, k: i64| i32::try_from(i64::from(o) + k * cell);
+    let (ox, oy) = (
+        origin(g.origin_mm().0, off.0).context("the log lies too far from its origin")?,
+        origin(g.origin_mm().1, off.1).context("the log lies too far from its origin")?,
+    );
+    let budget = match args.fixed_updates {
+        Some(updates) => Budget::Fixed { updates },
+        None => Budget::Time {
+            period_us: args.period_us,
+            max_updates: args.max_updates,
+        },
+    };
+    // The robot's settings made for this log's sensor, as eval-log's robot mode makes them
+    // (σ and τ estimated from the experiment's own data), on the robot's grid.
+    let sensor = crate::eval::noise::estimate(
+        &g,
+        &setup.mapper,
+        &scans,
+        &map_scans(g, setup.mapper, &scans)?.map,
+    )
+    .map(|n| n.sensor());
+    let robot = match sensor {
+        Some((sigma, tau)) => RunConfig::ROBOT.with_sensor(sigma, tau)?,
+        None => RunConfig::ROBOT,
+    };
+    let base = robot
+        .with_origin_mm(ox, oy)
+        .with_max_range_mm(setup.mapper.max_range_mm)
+        .with_seed(args.seed)
+        .with_budget(budget);
+    let config = log_config(
+        RunConfig {
+            tiles_per_scan: args.tiles_per_scan,
+            count_tiles_per_scan: args.count_tiles_per_scan,
+            ..base
+        },
+        mount_heading(&scans),
+    );
+    let (input, encoding) = log_input(&scans, &config)?;
+    eprintln!(
+        "{}: {} scans (experiment {experiment}) as LD06 turns, lidar mounted at {}°; \
+         {} padding points, {} inexact angles, {} clipped ranges; settings for σ, τ = {:?}",
+        setup.name,
+        scans.len(),
+        encoding.mount_deg,
+        encoding.padding_points,
+        encoding.inexact_angles,
+        encoding.clipped_ranges,
+        sensor
+    );
+    let (firmware, stream) = run_input(args, &config, &input)?;
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("{}: cannot create output directory", out.display()))?;
+    let link: Vec<u8> = [&input.link[..], &input.finish[..]].concat();
+    std::fs::write(out.join("stream.bin"), &stream)?;
+    std::fs::write(out.join("input.bin"), &link)?;
+    std::fs::write(out.join("lidar.bin"), &input.lidar)?;
+    // The robot's maps, as its stream carries them.
+    let fallback = || Ok((f64::from(config.cell_mm) / 1000.0, (0.0, 0.0)));
+    for (layer, name) in [("marginals", "map"), ("log-odds", "map-log-odds")] {
+        let world = ogm_field::export::world_from_stream(
+            &out.join("stream.bin"),
+            layer,
+            DEFAULT_OCCUPIED_THRESH,
+            DEFAULT_FREE_THRESH,
+            fallback,
+        )?;
+        ogm_field::export::export_world(&out.join(format!("{name}.yaml")), &world)?;
+    }
+    // Its final maps from the replay of the same bytes with the work it reported (identical to
+    // the board's when the run is).
+    let (events, _) = decode_captured(&stream);
+    let groups = Groups::of(&events);
+    let sizes = groups.hello.as_ref().map_or(fw, sizes_of);
+    let fixed = args.fixed_updates;
+    let maps = replay::<u8, _>(
+        &link,
+        &input.lidar,
+        sizes,
+        |w| {
+            if args.host_only {
+                fixed.or(Some(0))
+            } else {
+                groups.updates(w)
+            }
+        },
+        |_, _| {},
+        |m, _| m.map(|m| (probabilities(m.log_odds()), marginals(m))),
+    )?
+    .context("the robot was never configured")?;
+    let (near_mapped, coverage) = score(&setup, &maps.0, &maps.1, (fw.width, fw.height), off)?;
+    let report = LogRunReport {
+        log: path.display().to_string(),
+        experiment,
+        encoding,
+        sensor,
+        config,
+        grid: (fw.width, fw.height),
+        offset_cells: off,
+        coverage,
+        near_mapped,
+        firmware,
+    };
+    std::fs::write(
+        out.join("report.json"),
+        serde_json::to_string_pretty(&report)?,
+    )?;
+    Ok(report)
+}
+
+/// F1 near mapped of the robot's maps (`traditional`: its log-odds, `gibbs_l9_border`: its
+/// sampler's marginals) against the log's benchmark over the robot's grid (`w × h` cells at
+/// `off` in the benchmark's grid), and the share of the benchmark's mapped cells it covers.
+fn score(
+    setup: &crate::eval::eval_log::LogSetup,
+    log_odds: &[f64],
+    sampler: &[f64],
+    (w, h): (u16, u16),
+    off: (i64, i64),
+) -> anyhow::Result<(Vec<(String, Summary)>, f64)> {
+    let g: GridGeometry = setup.geometry;
+    let bench = map_scans(g, setup.mapper, &setup.scans)?;
+    let truth = benchmark_truth(
+        &probabilities(&bench.map),
+        &bench.observed,
+        BENCHMARK_THRESHOLD,
+    );
+    let (gw, gh) = (i64::from(g.width()), i64::from(g.height()));
+    let (w, h) = (usize::from(w), usize::from(h));
+    let mut crop = vec![Truth::Unknown; w * h];
+    let mut covered = 0usize;
+    for y in 0..h {
+        for x in 0..w {
+            let (bx, by) = (x as i64 + off.0, y as i64 + off.1);
+            if (0..gw).contains(&bx) && (0..gh).contains(&by) {
+                let i = (by * gw + bx) as usize;
+                crop[y * w + x] = truth[i];
+                covered += usize::from(bench.observed[i]);
+            }
+        }
+    }
+    let mapped = bench.observed.iter().filter(|&&o| o).count().max(1);
+    let observed: Vec<bool> = log_odds.iter().map(|p| *p != 0.5).collect();
+    let near = mask_within(&observed, w, h, NEAR_MAPPED_CELLS);
+    let world = World {
+        width: w,
+        height: h,
+        resolution_m: f64::from(g.cell_mm()) / 1000.0,
+        origin_m: (0.0, 0.0),
+        cells: crop,
+    };
+    let mut out = Vec::new();
+    for (name, probs) in [("traditional", log_odds), ("gibbs_l9_border", sampler)] {
+        let mut a = PrAccumulator::new();
+        a.add(probs, &world.cells, Some(&near))?;
+        out.push((name.to_string(), a.summary()));
+    }
+    Ok((out, covered as f64 / mapped as f64))
+}
