@@ -124,18 +124,6 @@ struct Args {
     /// Matcher: heading window, degrees.
     #[arg(long)]
     max_turn_deg: Option<f64>,
-    /// Experiment: translation prior per point as `K / d²` (d: odometry step, m; clamped), K given.
-    #[arg(long)]
-    prior_per_m: Option<f64>,
-    /// Experiment: rotation prior as `K / (0.05·|dθ| + 0.2°/m·d)²` scaled, K given.
-    #[arg(long)]
-    prior_rot_k: Option<f64>,
-    /// Experiment: heading σ per radian turned for `--prior-rot-k`.
-    #[arg(long, default_value_t = 0.05)]
-    prior_rot_a: f64,
-    /// Experiment: heading σ per metre for `--prior-rot-k`, rad/m.
-    #[arg(long, default_value_t = 0.0035)]
-    prior_rot_b: f64,
     /// Matcher: log-odds of observed free.
     #[arg(long, allow_hyphen_values = true)]
     free: Option<i16>,
@@ -669,17 +657,6 @@ fn run(a: &Args, name: &str, scans: &[(Pose, Vec<Beam>)], seed: u64) -> anyhow::
                 let t = Instant::now();
                 let st = prepare_points(beams, g.cell_mm(), &cfg, &mut buf);
                 let map = MapView::of(mapper.grid());
-                let mut cfg = cfg;
-                let step = odo[i - 1].between(&odo[i]);
-                if let Some(k) = a.prior_per_m {
-                    let d = (step.x.hypot(step.y) / 1000.0).max(0.05);
-                    cfg.prior_trans_q8 = (k / (d * d)).round().clamp(1.0, 65535.0) as u16;
-                }
-                if let Some(k) = a.prior_rot_k {
-                    let d = step.x.hypot(step.y) / 1000.0;
-                    let sig = a.prior_rot_a * step.th.abs() + a.prior_rot_b * d + 0.002;
-                    cfg.prior_rot = (k / (sig * sig)).round().clamp(1.0, 65535.0) as u16;
-                }
                 let r = match_scan(&map, &buf[..st.kept], &predicted, &cfg);
                 match_time += t.elapsed().as_secs_f64();
                 matched_scans += 1;
