@@ -27,7 +27,7 @@
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 FUZZ="$ROOT/fuzz"
-ALL=(ld06 rplidar wire_frame pose_frames carmen map_loader)
+ALL=(ld06 rplidar wire_frame pose_frames carmen map_loader matcher)
 CARGO_FUZZ_VERSION=0.13.2
 
 say() { printf '[fuzz] %s\n' "$*" >&2; }

@@ -32,6 +32,8 @@ macro_rules! error {
 }
 
 pub mod app;
+#[cfg(feature = "bench-match")]
+pub mod bench_match;
 pub mod platform;
 pub mod run;
 pub mod selftest;

@@ -52,6 +52,15 @@ fn main() -> ! {
         ogm_firmware::app::MAX_BEAMS
     );
     let (link, lidar, clock) = board.parts();
+    // `FIRMWARE_FEATURES=bench-match`: the matcher's benchmark instead of the application.
+    #[cfg(feature = "bench-match")]
+    let code = {
+        let _ = (link, lidar);
+        let mut memory = memory;
+        let b = &mut memory.buffers;
+        ogm_firmware::bench_match::run(&mut b.grid[..], &mut b.marks[..], b.width, b.height, clock)
+    };
+    #[cfg(not(feature = "bench-match"))]
     let code = ogm_firmware::run(memory, link, lidar, clock);
     let stack = board::stack_usage();
     info!(

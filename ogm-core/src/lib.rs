@@ -11,6 +11,7 @@
 //! * [`wire`] — the host link's frames and messages and the map stream's tile codec;
 //! * [`map`] — online log-odds mapping: grid, rays, inverse sensor models, the mapper;
 //! * [`sampler`] — the patch prior, forward model, ray store and the patch Gibbs sampler;
+//! * [`localize`] — scan-to-map matching: odometry pose + scan → corrected pose and a verdict;
 //! * [`lidar`] — LD06 and RPLIDAR parsers, the robot's receive link, turns and pose tracking:
 //!   the one way scans and poses enter (bytes in, sans-IO; [`lidar::source`] says why);
 //! * [`session`] — the engine: mapper, ray store and sampler behind `insert` / `step`;
@@ -48,6 +49,8 @@ pub mod wire;
 
 pub mod map;
 pub mod sampler;
+
+pub mod localize;
 
 pub mod lidar;
 

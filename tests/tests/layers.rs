@@ -298,6 +298,7 @@ const LAYERS: &[&[&str]] = &[
     &["wire"],
     &["map"],
     &["sampler"],
+    &["localize"],
     &["lidar"],
     &["session"],
     &["reference"],
