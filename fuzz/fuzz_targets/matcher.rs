@@ -73,7 +73,11 @@ fuzz_target!(|input: Input| {
             .take(400)
             .map(|&(a, r)| Beam {
                 angle: Angle(a),
-                range: if r % 7 == 0 { Range::NoReturn } else { Range::Hit(r) },
+                range: if r % 7 == 0 {
+                    Range::NoReturn
+                } else {
+                    Range::Hit(r)
+                },
             })
             .collect();
         t.set_matching(s.matching);
