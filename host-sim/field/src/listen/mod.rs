@@ -46,7 +46,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 
-use crate::stream::{StreamDecoder, StreamedMap};
+use crate::stream::{BuildingMap, BuildingRender, StreamDecoder, StreamedMap};
 
 pub use args::{default_config, ListenArgs};
 pub use control::Control;
@@ -75,8 +75,8 @@ pub struct Listener {
     /// Bytes of the frame being received (since the last `0x00`).
     pending: u64,
     capture: Option<(PathBuf, std::fs::File)>,
-    map: Option<StreamedMap>,
-    have_counts: Vec<bool>,
+    /// The building as the tiles give it (a rolling window's: all of it).
+    map: Option<BuildingMap>,
     samples: u32,
     stats: ListenStats,
     /// Garbage bytes when the link was last cut (a reconnect or a restart), until a good frame.
@@ -110,7 +110,6 @@ impl Listener {
             pending: 0,
             capture: None,
             map: None,
-            have_counts: Vec::new(),
             samples: 0,
             stats: ListenStats::default(),
             resync_from: None,
@@ -193,14 +192,20 @@ impl Listener {
         &mut self.stats
     }
 
-    /// The map so far (none before the first `Hello` or tile).
-    pub fn map(&self) -> Option<&StreamedMap> {
-        self.map.as_ref()
+    /// The building so far, rendered (none before the first `Hello` or tile): the `Hello`'s
+    /// grid, grown by every tile that lies outside it (a rolling window's stream).
+    pub fn render(&self) -> Option<BuildingRender> {
+        self.map.as_ref().map(BuildingMap::render)
     }
 
-    /// Cells whose marginal tile has arrived.
-    pub fn have_counts(&self) -> &[bool] {
-        &self.have_counts
+    /// The map so far (none before the first `Hello` or tile); see [`Listener::render`].
+    pub fn map(&self) -> Option<StreamedMap> {
+        self.render().map(|r| r.map)
+    }
+
+    /// Cells of [`Listener::map`] whose marginal tile has arrived.
+    pub fn have_counts(&self) -> Vec<bool> {
+        self.render().map(|r| r.have_counts).unwrap_or_default()
     }
 
     /// Whether anything changed since the last save.
