@@ -290,6 +290,18 @@ fn a_windowed_stream_stitches_to_the_unbounded_map() {
         0.196,
     );
     assert_eq!(world.cells, want.cells);
+
+    // `listen` sees the same building, in any chunking, and saves it.
+    let mut l = ogm_field::listen::Listener::new();
+    for c in stream.chunks(777) {
+        l.push(c);
+    }
+    let lw = l.world(MapLayer::LogOdds).expect("a map");
+    assert_eq!((lw.width, lw.height), (world.width, world.height));
+    assert_eq!(lw.cells, world.cells);
+    assert!((lw.origin_m.0 - origin.0).abs() < 1e-9 && (lw.origin_m.1 - origin.1).abs() < 1e-9);
+    assert_eq!(l.stats().window, Some(last));
+    assert_eq!(l.stats().bad_tiles, 0);
 }
 
 #[test]
