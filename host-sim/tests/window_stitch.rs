@@ -175,11 +175,11 @@ fn a_windowed_stream_stitches_to_the_unbounded_map() {
     let events = decode(&stream);
     let last = events
         .iter()
-        .filter_map(|e| match e {
+        .rev()
+        .find_map(|e| match e {
             DeviceEvent::Window(w) => Some(*w),
             _ => None,
         })
-        .last()
         .expect("Window reports");
     assert!(last.shifts >= 3, "{last:?}");
     assert_eq!((last.beams_clipped, last.shifts_refused), (0, 0));

@@ -81,12 +81,6 @@ pub fn world_from_stream(
             _ => {}
         }
     }
-    ensure!(
-        building.tiles_applied() > 0,
-        "{}: no map tile in the stream ({} frames): nothing to export",
-        path.display(),
-        events.len()
-    );
     if building.tiles_bad_size() > 0 {
         eprintln!(
             "warning: {}: {} tiles had the wrong size and were skipped",
@@ -102,6 +96,12 @@ pub fn world_from_stream(
             crate::stream::MAX_BUILDING_CELLS
         );
     }
+    ensure!(
+        building.tiles_applied() > 0,
+        "{}: no map tile in the stream ({} frames): nothing to export",
+        path.display(),
+        events.len()
+    );
     let render = building.render();
     let map = &render.map;
     let (resolution, origin) = match &config {

@@ -16,7 +16,8 @@ use super::{OwnedTile, StreamedMap};
 
 /// Largest building a stream may grow to, in cells (4096 × 4096: 205 m square at 5 cm).
 pub const MAX_BUILDING_CELLS: u64 = 1 << 24;
-/// Most distinct tiles a building may hold (4096 × 4096 cells of 16-cell tiles).
+/// Most distinct tiles a building may hold outside the robot's grid (4096 × 4096 cells of
+/// 16-cell tiles).
 pub const MAX_BUILDING_TILES: usize = 1 << 16;
 
 /// Why a tile was not stored.
@@ -90,6 +91,8 @@ pub struct BuildingMap {
     tiles: BTreeMap<(i32, i32), Stored>,
     /// Tile bounds: the `Hello`'s grid and every stored tile.
     bounds: Bounds,
+    /// Distinct tiles stored outside the `Hello`'s grid.
+    outside: usize,
     applied: u64,
     bad_size: u64,
     refused: u64,
@@ -122,6 +125,7 @@ impl BuildingMap {
                 tx1: tiles_x - 1,
                 ty1: tiles_y - 1,
             },
+            outside: 0,
             applied: 0,
             bad_size: 0,
             refused: 0,
@@ -164,6 +168,12 @@ impl BuildingMap {
         self.window = Some(w);
     }
 
+    /// Whether tile (`tx`, `ty`) is one of the `Hello`'s grid.
+    fn in_grid(&self, tx: i32, ty: i32) -> bool {
+        let inside = |t: i32, cells: usize| t >= 0 && (t as usize) < cells.div_ceil(self.edge);
+        inside(tx, self.width) && inside(ty, self.height)
+    }
+
     /// The size of tile (`tx`, `ty`): the `Hello`'s grid's tile there (smaller at its right and
     /// top edges), else a full `edge × edge` tile.
     fn tile_size(&self, tx: i32, ty: i32) -> (usize, usize) {
@@ -198,9 +208,9 @@ impl BuildingMap {
     /// changes nothing and is counted.
     pub fn apply(&mut self, t: &OwnedTile) -> Result<(), BuildingError> {
         let (w, h) = self.tile_size(t.tx, t.ty);
-        let cells = w * h;
+        let cells = w.saturating_mul(h);
         let expected = match t.layer {
-            Layer::LogOdds => 2 * cells,
+            Layer::LogOdds => cells.saturating_mul(2),
             Layer::Counts => cells,
             Layer::Sample => cells.div_ceil(8),
         };
@@ -222,13 +232,18 @@ impl BuildingMap {
                 tx1: self.bounds.tx1.max(tx),
                 ty1: self.bounds.ty1.max(ty),
             };
-            let (_, _, cw, ch) = self.cells_of(b);
-            let too_large = cw.checked_mul(ch).is_none_or(|n| n > MAX_BUILDING_CELLS);
-            if too_large || self.tiles.len() >= MAX_BUILDING_TILES {
-                self.refused += 1;
-                return Err(BuildingError::TooLarge { tx: t.tx, ty: t.ty });
+            // The `Hello`'s grid (whatever its size: a fixed grid's tiles as before) is always
+            // there; beyond it the caps hold.
+            if !self.in_grid(t.tx, t.ty) {
+                let (_, _, cw, ch) = self.cells_of(b);
+                let too_large = cw.checked_mul(ch).is_none_or(|n| n > MAX_BUILDING_CELLS);
+                if too_large || self.outside >= MAX_BUILDING_TILES {
+                    self.refused += 1;
+                    return Err(BuildingError::TooLarge { tx: t.tx, ty: t.ty });
+                }
+                self.outside += 1;
+                self.bounds = b;
             }
-            self.bounds = b;
         }
         let stored = self.tiles.entry(key).or_insert_with(|| Stored {
             w,
@@ -424,5 +439,20 @@ mod tests {
         let r = b.render();
         assert!((r.map.width * r.map.height) as u64 <= MAX_BUILDING_CELLS);
         assert_eq!(b.tiles_refused(), 5 + refused as u64);
+    }
+
+    #[test]
+    fn many_small_tiles_beyond_the_grid_are_capped() {
+        // 1-cell tiles: the cells cap alone would allow 2^24 of them.
+        let mut b = BuildingMap::new(4, 4, 1);
+        let one = |tx, ty| tile(Layer::Counts, tx, ty, vec![1]);
+        let mut refused = 0;
+        for k in 0..MAX_BUILDING_TILES as i32 + 100 {
+            refused += usize::from(b.apply(&one(k % 300, -1 - k / 300)).is_err());
+        }
+        assert_eq!((refused, b.building_tiles()), (100, MAX_BUILDING_TILES));
+        // The robot's own grid still takes its tiles.
+        b.apply(&one(3, 3)).unwrap();
+        assert_eq!(b.tiles_refused(), 100);
     }
 }
