@@ -3,7 +3,8 @@
 //! The robot streams its map as COBS frames (docs/wire.md). The listener
 //!
 //! * decodes the stream with the one decoder ([`StreamDecoder`]) and keeps the map
-//!   ([`StreamedMap`], every tile applied in order), whatever the chunking of the bytes;
+//!   ([`BuildingMap`]: the newest tile per building tile, so a rolling window's stream gives the
+//!   whole building; a fixed grid's, the grid), whatever the chunking of the bytes;
 //! * counts the link: good frames, bad frames (COBS, CRC-32, version, postcard), CRC errors among
 //!   them, oversized runs, garbage bytes (everything outside a good frame), scans reported and
 //!   scans **missed** (gaps in the scan sequence numbers), reconnects and the time spent
@@ -17,8 +18,9 @@
 //! * sends host messages (settings, scan poses, raw lidar bytes, `Finish`) from a file or stdin;
 //! * survives unplug/replug: on a read error it reopens the device with a back-off and goes on.
 //!
-//! Untrusted bytes from the port go only through [`StreamDecoder`] and [`StreamedMap::apply`]
-//! (which checks every tile against the grid); a `Hello` announcing an absurd grid is refused.
+//! Untrusted bytes from the port go only through [`StreamDecoder`] and [`BuildingMap::apply`]
+//! (which checks every tile's size and caps how far the building grows); a `Hello` announcing
+//! an absurd grid is refused.
 //!
 //! The core ([`Listener`]) takes bytes and is I/O free; [`run`] is the loop around a serial port
 //! (or a captured file), [`cli`] the command.

@@ -82,7 +82,8 @@ struct Bounds {
     ty1: i64,
 }
 
-/// The building as the stream's tiles give it (see the [module docs](self)).
+/// The building as the stream's tiles give it: tiles keyed by building tile coordinates, the
+/// newest of each layer winning, the bounds growing (capped) as tiles arrive.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BuildingMap {
     width: usize,
