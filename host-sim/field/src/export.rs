@@ -2,6 +2,9 @@
 //! complete or cut off anywhere) as a ROS map_server map. The grid size comes from its `Hello`,
 //! the cell size and origin from its `Configured` (or the caller's fallback if the capture has
 //! none), and every tile in it is applied in order, so the latest state of each tile wins.
+//! Tiles carry building tile coordinates ([`BuildingMap`]): a rolling window's stream gives the
+//! whole building (its origin the settings' origin moved by the tiles left of or below the
+//! robot's first grid); a fixed grid's gives exactly that grid.
 //! Cells whose log-odds is 0 (never measured) are unknown in both layers; cells whose marginal
 //! tile is not in the capture yet take their log-odds probability (where the robot's estimates
 //! start). [`export_world`] is the writer every map export goes through (`listen` saves with
@@ -12,7 +15,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, ensure, Context};
 
 use crate::stream::{
-    counts_of_one, decode_file, stream_probabilities, DeviceEvent, MapLayer, StreamedMap,
+    counts_of_one, decode_file, stream_probabilities, BuildingMap, DeviceEvent, MapLayer,
 };
 use crate::world::{probabilities_to_world, write_png, write_ros_map, World};
 
@@ -63,41 +66,44 @@ pub fn world_from_stream(
         "{}: Hello gives an empty grid",
         path.display()
     );
-    let mut map = StreamedMap::new(w, h, usize::from(hello.tile_edge));
-    let (mut config, mut samples, mut bad_tiles) = (None, 0u32, 0usize);
-    // Cells whose marginal tile has arrived (the robot streams those round robin, so a short
-    // or cut-off capture may lack some).
-    let mut have_counts = vec![false; w * h];
+    let mut building = BuildingMap::new(w, h, usize::from(hello.tile_edge));
+    let mut config = None;
+    let mut samples = 0u32;
     for e in &events {
         match e {
             DeviceEvent::Configured(c) => config = Some(*c),
             DeviceEvent::Sampler(r) => samples = r.samples,
-            DeviceEvent::Tile(t) => match map.apply(t) {
-                Err(_) => bad_tiles += 1,
-                Ok(rect) if t.layer == ogm_core::wire::Layer::Counts => {
-                    for c in rect.cells() {
-                        if let Some(x) = have_counts.get_mut(c) {
-                            *x = true;
-                        }
-                    }
-                }
-                Ok(_) => {}
-            },
+            DeviceEvent::Window(r) => building.note_window(*r),
+            // A bad tile is counted by the map and skipped.
+            DeviceEvent::Tile(t) => {
+                let _ = building.apply(t);
+            }
             _ => {}
         }
     }
+    if building.tiles_bad_size() > 0 {
+        eprintln!(
+            "warning: {}: {} tiles had the wrong size and were skipped",
+            path.display(),
+            building.tiles_bad_size()
+        );
+    }
+    if building.tiles_refused() > 0 {
+        eprintln!(
+            "warning: {}: {} tiles lay too far away (the building is capped at {} cells) and were skipped",
+            path.display(),
+            building.tiles_refused(),
+            crate::stream::MAX_BUILDING_CELLS
+        );
+    }
     ensure!(
-        map.tiles > 0,
+        building.tiles_applied() > 0,
         "{}: no map tile in the stream ({} frames): nothing to export",
         path.display(),
         events.len()
     );
-    if bad_tiles > 0 {
-        eprintln!(
-            "warning: {}: {bad_tiles} tiles did not fit the grid and were skipped",
-            path.display()
-        );
-    }
+    let render = building.render();
+    let map = &render.map;
     let (resolution, origin) = match &config {
         Some(c) => (
             f64::from(c.cell_mm) / 1000.0,
@@ -124,9 +130,10 @@ pub fn world_from_stream(
     } else {
         MapLayer::LogOdds
     };
+    let origin = render.origin_m(resolution, origin);
     let probs = stream_probabilities(
-        &map,
-        &have_counts,
+        map,
+        &render.have_counts,
         counts_of_one(config.as_ref(), Some(&hello), samples),
         layer,
     );
@@ -134,14 +141,24 @@ pub fn world_from_stream(
         "{}: {} tiles applied, {}x{} cells, layer {}",
         path.display(),
         map.tiles,
-        w,
-        h,
+        map.width,
+        map.height,
         layer_name
     );
+    if let Some(win) = building.window() {
+        println!(
+            "{}: rolling window: {} building tiles stitched, {} shifts, {} tiles out, {} beams clipped",
+            path.display(),
+            building.building_tiles(),
+            win.shifts,
+            win.tiles_out,
+            win.beams_clipped
+        );
+    }
     Ok(probabilities_to_world(
         &probs,
-        w,
-        h,
+        map.width,
+        map.height,
         resolution,
         origin,
         occupied_thresh,

@@ -2,12 +2,12 @@
 
 use std::io::Write;
 
-use ogm_core::wire::{Layer, WireError};
+use ogm_core::wire::WireError;
 use ogm_firmware::sizes::MPS2_AN386 as FW;
 
 use super::stats::{Gap, Notice};
 use super::{Listener, MAX_CELLS, MAX_GAPS_KEPT};
-use crate::stream::{DeviceEvent, StreamedMap};
+use crate::stream::{BuildingError, BuildingMap, DeviceEvent};
 
 impl Listener {
     /// Feeds bytes from the robot; returns what deserves a line of its own.
@@ -86,12 +86,12 @@ impl Listener {
                     return;
                 }
                 self.stats.hellos += 1;
-                self.map = Some(StreamedMap::new(
+                self.map = Some(BuildingMap::new(
                     usize::from(h.width),
                     usize::from(h.height),
                     usize::from(h.tile_edge),
                 ));
-                self.have_counts = vec![false; cells];
+                self.stats.window = None;
                 self.samples = 0;
                 self.stats.last_seq = None;
                 self.stats.config = None;
@@ -143,8 +143,7 @@ impl Listener {
                 if self.map.is_none() {
                     // Started mid-run with no capture: assume the reference firmware's grid.
                     let (w, h) = (usize::from(FW.width), usize::from(FW.height));
-                    self.map = Some(StreamedMap::new(w, h, usize::from(FW.tile_edge)));
-                    self.have_counts = vec![false; w * h];
+                    self.map = Some(BuildingMap::new(w, h, usize::from(FW.tile_edge)));
                     if !self.warned_no_hello {
                         self.warned_no_hello = true;
                         notices.push(Notice::Warning(format!(
@@ -155,18 +154,12 @@ impl Listener {
                 }
                 let Some(map) = self.map.as_mut() else { return };
                 match map.apply(&t) {
-                    Ok(rect) => {
-                        self.stats.tiles += 1;
-                        if t.layer == Layer::Counts {
-                            for c in rect.cells() {
-                                if let Some(x) = self.have_counts.get_mut(c) {
-                                    *x = true;
-                                }
-                            }
-                        }
-                    }
+                    Ok(()) => self.stats.tiles += 1,
                     Err(e) => {
                         self.stats.bad_tiles += 1;
+                        if matches!(e, BuildingError::TooLarge { .. }) {
+                            self.stats.tiles_refused += 1;
+                        }
                         if self.stats.bad_tiles <= 3 {
                             notices.push(Notice::Warning(format!("tile dropped: {e}")));
                         }
@@ -185,10 +178,14 @@ impl Listener {
                 notices.push(Notice::Done(d));
             }
             DeviceEvent::Idle(_) => {}
-            // A rolling window: this map is the Hello's grid at building tile (0, 0); tiles that
-            // lie outside it are refused and counted as before. A growing, stitched map is the
-            // host side of issue 38 (docs/wire.md, "Rolling window").
-            DeviceEvent::Window(_) => {}
+            // A rolling window: the tiles carry building coordinates, so the map needs nothing
+            // from the report; it goes to status.json.
+            DeviceEvent::Window(w) => {
+                if let Some(map) = self.map.as_mut() {
+                    map.note_window(w);
+                }
+                self.stats.window = Some(w);
+            }
             DeviceEvent::Ranges(r) => self.scan_ranges(&r, notices),
         }
     }
@@ -230,7 +227,7 @@ impl Listener {
 mod tests {
     use super::super::test_stream::{cobs, config, frame, hello, stream};
     use super::*;
-    use ogm_core::wire::{self, DeviceMsg, Done, Hello, ScanReport, Tile};
+    use ogm_core::wire::{self, DeviceMsg, Done, Hello, Layer, ScanReport, Tile};
 
     #[test]
     fn any_chunking_gives_the_same_map_and_counters() {
@@ -363,11 +360,12 @@ mod tests {
         assert_eq!(l.stats().bad_hellos, 1);
         assert!(l.map().is_none());
         assert!(matches!(n.as_slice(), [Notice::Warning(_)]));
-        // A tile off the firmware grid is dropped, one on it applied.
+        // A tile absurdly far off the firmware grid is dropped (the building map would grow
+        // past its cap), one on it applied.
         let data = vec![1u8; 256];
         let off = frame(&DeviceMsg::Tile(Tile {
             layer: Layer::Counts,
-            tx: 99,
+            tx: i32::MIN,
             ty: 0,
             data: &data,
         }));
@@ -382,6 +380,20 @@ mod tests {
         let m = l.map().unwrap();
         assert_eq!((m.width, m.height), (256, 256));
         assert_eq!((l.stats().tiles, l.stats().bad_tiles), (1, 1));
+        assert_eq!(l.stats().tiles_refused, 1);
         assert_eq!(m.counts[255 * 256 + 255], 1);
+        // A tile beside the grid (a rolling window's) grows the map to the building.
+        let beside = frame(&DeviceMsg::Tile(Tile {
+            layer: Layer::Counts,
+            tx: -1,
+            ty: 16,
+            data: &data,
+        }));
+        l.push(&beside);
+        let r = l.render().unwrap();
+        assert_eq!((r.x0, r.y0, r.map.width, r.map.height), (-16, 0, 272, 272));
+        assert_eq!(r.map.counts[271 * 272], 1);
+        assert_eq!(r.map.counts[255 * 272 + 255 + 16], 1);
+        assert_eq!((l.stats().tiles, l.stats().bad_tiles), (2, 1));
     }
 }

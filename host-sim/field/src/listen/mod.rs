@@ -3,7 +3,8 @@
 //! The robot streams its map as COBS frames (docs/wire.md). The listener
 //!
 //! * decodes the stream with the one decoder ([`StreamDecoder`]) and keeps the map
-//!   ([`StreamedMap`], every tile applied in order), whatever the chunking of the bytes;
+//!   ([`BuildingMap`]: the newest tile per building tile, so a rolling window's stream gives the
+//!   whole building; a fixed grid's, the grid), whatever the chunking of the bytes;
 //! * counts the link: good frames, bad frames (COBS, CRC-32, version, postcard), CRC errors among
 //!   them, oversized runs, garbage bytes (everything outside a good frame), scans reported and
 //!   scans **missed** (gaps in the scan sequence numbers), reconnects and the time spent
@@ -17,8 +18,9 @@
 //! * sends host messages (settings, scan poses, raw lidar bytes, `Finish`) from a file or stdin;
 //! * survives unplug/replug: on a read error it reopens the device with a back-off and goes on.
 //!
-//! Untrusted bytes from the port go only through [`StreamDecoder`] and [`StreamedMap::apply`]
-//! (which checks every tile against the grid); a `Hello` announcing an absurd grid is refused.
+//! Untrusted bytes from the port go only through [`StreamDecoder`] and [`BuildingMap::apply`]
+//! (which checks every tile's size and caps how far the building grows); a `Hello` announcing
+//! an absurd grid is refused.
 //!
 //! The core ([`Listener`]) takes bytes and is I/O free; [`run`] is the loop around a serial port
 //! (or a captured file), [`cli`] the command.
@@ -46,7 +48,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 
-use crate::stream::{StreamDecoder, StreamedMap};
+use crate::stream::{BuildingMap, BuildingRender, StreamDecoder, StreamedMap};
 
 pub use args::{default_config, ListenArgs};
 pub use control::Control;
@@ -75,8 +77,8 @@ pub struct Listener {
     /// Bytes of the frame being received (since the last `0x00`).
     pending: u64,
     capture: Option<(PathBuf, std::fs::File)>,
-    map: Option<StreamedMap>,
-    have_counts: Vec<bool>,
+    /// The building as the tiles give it (a rolling window's: all of it).
+    map: Option<BuildingMap>,
     samples: u32,
     stats: ListenStats,
     /// Garbage bytes when the link was last cut (a reconnect or a restart), until a good frame.
@@ -110,7 +112,6 @@ impl Listener {
             pending: 0,
             capture: None,
             map: None,
-            have_counts: Vec::new(),
             samples: 0,
             stats: ListenStats::default(),
             resync_from: None,
@@ -193,14 +194,20 @@ impl Listener {
         &mut self.stats
     }
 
-    /// The map so far (none before the first `Hello` or tile).
-    pub fn map(&self) -> Option<&StreamedMap> {
-        self.map.as_ref()
+    /// The building so far, rendered (none before the first `Hello` or tile): the `Hello`'s
+    /// grid, grown by every tile that lies outside it (a rolling window's stream).
+    pub fn render(&self) -> Option<BuildingRender> {
+        self.map.as_ref().map(BuildingMap::render)
     }
 
-    /// Cells whose marginal tile has arrived.
-    pub fn have_counts(&self) -> &[bool] {
-        &self.have_counts
+    /// The map so far (none before the first `Hello` or tile); see [`Listener::render`].
+    pub fn map(&self) -> Option<StreamedMap> {
+        self.render().map(|r| r.map)
+    }
+
+    /// Cells of [`Listener::map`] whose marginal tile has arrived.
+    pub fn have_counts(&self) -> Vec<bool> {
+        self.render().map(|r| r.have_counts).unwrap_or_default()
     }
 
     /// Whether anything changed since the last save.

@@ -8,7 +8,7 @@ use anyhow::Context;
 
 use super::{Listener, LOG_ODDS_STEM, MAP_STEM, STATUS_FILE};
 use crate::export::export_world;
-use crate::stream::{counts_of_one, stream_probabilities, MapLayer};
+use crate::stream::{counts_of_one, stream_probabilities, BuildingRender, MapLayer};
 use crate::world::load::{DEFAULT_FREE_THRESH, DEFAULT_OCCUPIED_THRESH};
 use crate::world::{probabilities_to_world, World};
 
@@ -114,19 +114,18 @@ impl Listener {
 
     /// Both layers as the recording and the live view send them.
     fn map_layers(&self) -> Vec<LayerCells> {
-        let Some(map) = self.map.as_ref() else {
+        let Some(render) = self.render() else {
             return Vec::new();
         };
+        let map = &render.map;
         let (width, height) = (map.width, map.height);
         let known: Vec<bool> = (0..width * height)
             .map(|i| map.log_odds.get(i).is_some_and(|&l| l != 0))
             .collect();
-        let (cell_m, origin_m) = self.geometry();
+        let (cell_m, origin_m) = self.geometry(&render);
         let mut out = Vec::new();
         for (marginals, layer) in [(true, MapLayer::Marginals), (false, MapLayer::LogOdds)] {
-            let Some(probs) = self.probabilities(layer) else {
-                continue;
-            };
+            let probs = self.probabilities_of(&render, layer);
             let cells: Vec<Option<f64>> = probs
                 .iter()
                 .zip(&known)
@@ -144,21 +143,25 @@ impl Listener {
         out
     }
 
-    /// Probabilities of `layer` (none before the first `Hello` or tile).
+    /// Probabilities of `layer` over [`Listener::map`] (none before the first `Hello` or tile).
     pub fn probabilities(&self, layer: MapLayer) -> Option<Vec<f64>> {
-        let map = self.map.as_ref()?;
+        Some(self.probabilities_of(&self.render()?, layer))
+    }
+
+    fn probabilities_of(&self, render: &BuildingRender, layer: MapLayer) -> Vec<f64> {
         let one = counts_of_one(
             self.stats.config.as_ref(),
             self.stats.hello.as_ref(),
             self.samples,
         );
-        Some(stream_probabilities(map, &self.have_counts, one, layer))
+        stream_probabilities(&render.map, &render.have_counts, one, layer)
     }
 
-    /// Cell size (m) and the world position of cell (0, 0) (m): from the robot's
-    /// `Configured`, else 5 cm at (0, 0).
-    fn geometry(&self) -> (f64, (f64, f64)) {
-        match &self.stats.config {
+    /// Cell size (m) and the world position of the rendered map's cell (0, 0) (m): building
+    /// cell (0, 0) is at the robot's `Configured` origin (else 5 cm at (0, 0)), moved by the
+    /// tiles that arrived left of or below the robot's grid.
+    fn geometry(&self, render: &BuildingRender) -> (f64, (f64, f64)) {
+        let (cell_m, origin_m) = match &self.stats.config {
             Some(c) if c.cell_mm > 0 => (
                 f64::from(c.cell_mm) / 1000.0,
                 (
@@ -167,19 +170,21 @@ impl Listener {
                 ),
             ),
             _ => (0.05, (0.0, 0.0)),
-        }
+        };
+        (cell_m, render.origin_m(cell_m, origin_m))
     }
 
-    /// The map of `layer` as a trinary world (export's thresholds); cell size and origin from
-    /// the robot's `Configured`, else 5 cm at (0, 0).
+    /// The map of `layer` as a trinary world (export's thresholds); the whole building for a
+    /// rolling window's stream; cell size and origin from the robot's `Configured`, else 5 cm
+    /// at (0, 0).
     pub fn world(&self, layer: MapLayer) -> Option<World> {
-        let map = self.map.as_ref()?;
-        let probs = self.probabilities(layer)?;
-        let (res, origin) = self.geometry();
+        let render = self.render()?;
+        let probs = self.probabilities_of(&render, layer);
+        let (res, origin) = self.geometry(&render);
         Some(probabilities_to_world(
             &probs,
-            map.width,
-            map.height,
+            render.map.width,
+            render.map.height,
             res,
             origin,
             DEFAULT_OCCUPIED_THRESH,

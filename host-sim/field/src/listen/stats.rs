@@ -41,8 +41,13 @@ pub struct ListenStats {
     pub seq_restarts: u64,
     /// Tiles applied.
     pub tiles: u64,
-    /// Tiles that did not fit the grid (dropped).
+    /// Tiles dropped: of the wrong size, or too far away (`tiles_refused`).
     pub bad_tiles: u64,
+    /// Of `bad_tiles`, those that would have grown the building past
+    /// [`MAX_BUILDING_CELLS`](crate::stream::MAX_BUILDING_CELLS) cells.
+    pub tiles_refused: u64,
+    /// The robot's last rolling-window report (wire v6; none with a fixed grid).
+    pub window: Option<ogm_core::wire::WindowReport>,
     /// Scan ranges of the wrong size (dropped).
     pub bad_ranges: u64,
     /// Scans whose ranges were placed at their report's pose (recorded, shown live).

@@ -1,18 +1,23 @@
 //! The robot's link seen from the host (docs/wire.md): the map stream it sends, decoded by
 //! [`StreamDecoder`] (COBS frames; resynchronises at the next `0x00` after garbage or a bad
-//! frame) into [`DeviceEvent`]s, the map rebuilt from its tiles ([`StreamedMap`]), and the host
+//! frame) into [`DeviceEvent`]s, the map rebuilt from its tiles ([`StreamedMap`]; the whole building of a rolling window:
+//! [`BuildingMap`]), and the host
 //! frames sent to it ([`host_frame`]).
 //!
 //! Everything framing-related is ogm-core's own code (`ogm_core::wire`), so host and robot
 //! cannot disagree about the format. (`ogm_core::lidar::link` is the robot's side of the same
 //! link: its demultiplexer of host frames and lidar bytes.)
 
+mod building;
 mod event;
 mod map;
 
 use anyhow::{anyhow, bail, ensure};
 use ogm_core::wire::{self, DeviceMsg, HostMsg, WireError};
 
+pub use building::{
+    BuildingError, BuildingMap, BuildingRender, MAX_BUILDING_CELLS, MAX_BUILDING_TILES,
+};
 pub use event::{DeviceEvent, OwnedHello, OwnedRanges, OwnedTile};
 pub use map::{counts_of_one, stream_probabilities, MapLayer, StreamedMap};
 
