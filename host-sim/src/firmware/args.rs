@@ -113,6 +113,11 @@ pub struct FirmwareArgs {
     /// 3 = every 10th pose and 2nd beam, 0 = everything).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(0..=3))]
     pub experiment: u8,
+    /// With `--log`: make the robot's grid a rolling window that shifts when the robot comes
+    /// closer than this many cells to an edge (`RunConfig::window_margin_cells`; at most half
+    /// the grid less a tile, 112 on the QEMU board); 0: a fixed grid around the start.
+    #[arg(long, default_value_t = 0)]
+    pub window_margin: u16,
     /// Only decode a captured map stream (e.g. firmware/target/qemu/uart1.out) and summarise it.
     #[arg(long)]
     pub decode: Option<PathBuf>,
@@ -154,6 +159,7 @@ impl Default for FirmwareArgs {
             decode: None,
             log: None,
             experiment: 1,
+            window_margin: 0,
         }
     }
 }

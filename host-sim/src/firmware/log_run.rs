@@ -4,9 +4,13 @@
 //!
 //! The robot's grid is its board's (256 × 256 cells of 5 cm on the QEMU board), centred on the
 //! log's first pose and aligned with `eval-log`'s grid of the same log, so its cells are
-//! `eval-log`'s cells: every figure is over the cells the robot's grid covers, against the
-//! benchmark made from all of the log's scans (the `coverage` says how much of the benchmark's
-//! mapped cells that is). Rays beyond the robot's grid are clipped by its mapper.
+//! `eval-log`'s cells. With `--window-margin CELLS` the grid is a rolling window
+//! (`RunConfig::window_margin_cells`) and the host stitches the building from the stream
+//! (`ogm_field::stream::BuildingMap`); without it the robot maps the grid around its start.
+//! Every figure is over the cells the stitched stream covers, against the benchmark made from
+//! all of the log's scans (the `coverage` says how much of the benchmark's mapped cells that
+//! is). Rays beyond the window are clipped by the robot's mapper (counted in its `Window`
+//! reports).
 //!
 //! `DIR/map.yaml` (+ `.pgm`, `.png`: map_server conventions, unknown cells unknown) is the
 //! robot's sampler map as `export --stream` makes it from the captured stream, `DIR/map-log-odds.yaml`
@@ -18,6 +22,7 @@ use std::path::Path;
 use anyhow::{ensure, Context};
 use ogm_core::config::{Budget, RunConfig};
 use ogm_core::GridGeometry;
+use ogm_field::stream::{counts_of_one, stream_probabilities, BuildingMap, DeviceEvent, MapLayer};
 use ogm_field::world::load::{DEFAULT_FREE_THRESH, DEFAULT_OCCUPIED_THRESH};
 use ogm_field::world::{Truth, World};
 use serde::Serialize;
@@ -25,7 +30,7 @@ use serde::Serialize;
 use super::args::FirmwareArgs;
 use super::groups::{decode_captured, Groups};
 use super::log::{log_config, log_input, mount_heading, LogEncoding};
-use super::replay::{marginals, replay, sizes_of, FIRMWARE_SIZES};
+use super::replay::FIRMWARE_SIZES;
 use super::report::FirmwareReport;
 use super::run::run_input;
 use crate::eval::eval_log::{
@@ -50,11 +55,14 @@ pub struct LogRunReport {
     pub sensor: Option<(f64, f64)>,
     /// The settings the robot ran with.
     pub config: RunConfig,
-    /// The robot's grid: cells wide and tall, and where it lies in `eval-log`'s grid of the
-    /// log (cell offset of its lower-left corner).
+    /// The robot's grid (its window, with `--window-margin`), cells wide and tall.
     pub grid: (u16, u16),
-    /// Offset of the robot's grid in `eval-log`'s grid, cells.
+    /// Offset of the robot's first grid in `eval-log`'s grid, cells.
     pub offset_cells: (i64, i64),
+    /// The stitched map, cells wide and tall (the grid itself without a window).
+    pub stitched: (usize, usize),
+    /// The robot's last `Window` report (with `--window-margin`).
+    pub window: Option<ogm_core::wire::WindowReport>,
     /// Share of the benchmark's mapped cells that the robot's grid covers.
     pub coverage: f64,
     /// F1 near mapped (`eval-log`'s protocol) of the robot's log-odds map (`traditional`) and
@@ -123,7 +131,7 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         RunConfig {
             tiles_per_scan: args.tiles_per_scan,
             count_tiles_per_scan: args.count_tiles_per_scan,
-            ..base
+            ..base.with_window_margin_cells(args.window_margin)
         },
         mount_heading(&scans),
     );
@@ -158,28 +166,41 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         )?;
         ogm_field::export::export_world(&out.join(format!("{name}.yaml")), &world)?;
     }
-    // Its final maps from the replay of the same bytes with the work it reported (identical to
-    // the board's when the run is).
+    // What the robot mapped, stitched from its stream as `export --stream` stitches it.
     let (events, _) = decode_captured(&stream);
     let groups = Groups::of(&events);
-    let sizes = groups.hello.as_ref().map_or(fw, sizes_of);
-    let fixed = args.fixed_updates;
-    let maps = replay::<u8, _>(
-        &link,
-        &input.lidar,
-        sizes,
-        |w| {
-            if args.host_only {
-                fixed.or(Some(0))
-            } else {
-                groups.updates(w)
+    let hello = groups
+        .hello
+        .as_ref()
+        .context("no Hello in the robot's stream")?;
+    let mut building = BuildingMap::new(
+        usize::from(hello.width),
+        usize::from(hello.height),
+        usize::from(hello.tile_edge),
+    );
+    let mut samples = 0;
+    for e in &events {
+        match e {
+            DeviceEvent::Window(w) => building.note_window(*w),
+            DeviceEvent::Tile(t) => {
+                let _ = building.apply(t);
             }
-        },
-        |_, _| {},
-        |m, _| m.map(|m| (probabilities(m.log_odds()), marginals(m))),
-    )?
-    .context("the robot was never configured")?;
-    let (near_mapped, coverage) = score(&setup, &maps.0, &maps.1, (fw.width, fw.height), off)?;
+            DeviceEvent::Sampler(s) => samples = s.samples,
+            _ => {}
+        }
+    }
+    let render = building.render();
+    let one = counts_of_one(Some(&config), Some(hello), samples);
+    let probs = |layer| stream_probabilities(&render.map, &render.have_counts, one, layer);
+    let (w, h) = (render.map.width, render.map.height);
+    let at = (off.0 + render.x0, off.1 + render.y0);
+    let (near_mapped, coverage) = score(
+        &setup,
+        &probs(MapLayer::LogOdds),
+        &probs(MapLayer::Marginals),
+        (w, h),
+        at,
+    )?;
     let report = LogRunReport {
         log: path.display().to_string(),
         experiment,
@@ -188,6 +209,8 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         config,
         grid: (fw.width, fw.height),
         offset_cells: off,
+        stitched: (w, h),
+        window: building.window().copied(),
         coverage,
         near_mapped,
         firmware,
@@ -200,13 +223,13 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
 }
 
 /// F1 near mapped of the robot's maps (`traditional`: its log-odds, `gibbs_l9_border`: its
-/// sampler's marginals) against the log's benchmark over the robot's grid (`w × h` cells at
+/// sampler's marginals) against the log's benchmark over the stitched map (`w × h` cells at
 /// `off` in the benchmark's grid), and the share of the benchmark's mapped cells it covers.
 fn score(
     setup: &crate::eval::eval_log::LogSetup,
     log_odds: &[f64],
     sampler: &[f64],
-    (w, h): (u16, u16),
+    (w, h): (usize, usize),
     off: (i64, i64),
 ) -> anyhow::Result<(Vec<(String, Summary)>, f64)> {
     let g: GridGeometry = setup.geometry;
@@ -217,7 +240,6 @@ fn score(
         BENCHMARK_THRESHOLD,
     );
     let (gw, gh) = (i64::from(g.width()), i64::from(g.height()));
-    let (w, h) = (usize::from(w), usize::from(h));
     let mut crop = vec![Truth::Unknown; w * h];
     let mut covered = 0usize;
     for y in 0..h {
