@@ -480,7 +480,14 @@ fn restore_parts_are_checked_and_every_refusal_is_counted() {
     assert_eq!(w.window().restore_refused, refused.get());
     let i = 7 * 16 * usize::from(WIN) + 7 * 16;
     assert_eq!(w.log_odds()[i].raw(), 7);
-    // Restored once: the tile is no longer unknown, a second restore is refused.
+    // Its parts repeated right after (a host sending every frame twice): ignored.
+    let r = restore_by_parts(&mut w, &mut asm, ox + 7, oy + 7, &lo, &est);
+    assert_eq!(r, Ok(false));
+    assert_eq!(w.window().restore_refused, refused.get());
+    // After another tile, a second restore finds it no longer unknown: refused.
+    let r = restore_by_parts(&mut w, &mut asm, ox + 6, oy + 7, &lo, &est);
+    assert_eq!(r, Ok(true));
     let r = restore_by_parts(&mut w, &mut asm, ox + 7, oy + 7, &lo, &est);
     expect(&w, r.map(|_| ()), RestoreError::Mapped);
+    assert_eq!(w.window().tiles_restored, 2);
 }

@@ -69,7 +69,7 @@ pub struct RestoreStep {
 
 /// One tile being assembled from its parts: 768 bytes of cells and two part masks. A part of
 /// another tile starts over (the incomplete one is dropped and counted); parts may come in
-/// any order and repeat.
+/// any order and repeat, also right after the tile was restored (ignored then).
 #[derive(Clone, Debug)]
 pub struct TileRestore {
     tile: Option<(i32, i32)>,
@@ -77,6 +77,9 @@ pub struct TileRestore {
     counts: [u8; MAX_RESTORE_CELLS],
     /// Parts received, per layer (`LogOdds`, `Counts`), one bit each.
     have: [u32; 2],
+    /// The tile restored last, until a part of another tile arrives: a repeat of its parts
+    /// (a host that sends each frame twice) is ignored rather than starting it over.
+    done: Option<(i32, i32)>,
 }
 
 impl Default for TileRestore {
@@ -93,6 +96,7 @@ impl TileRestore {
             log_odds: [0; MAX_RESTORE_CELLS],
             counts: [0; MAX_RESTORE_CELLS],
             have: [0; 2],
+            done: None,
         }
     }
 
@@ -173,6 +177,11 @@ impl<S: Storage> Session<S> {
             repeat: false,
             dropped: None,
         };
+        if asm.done == Some((tx, ty)) {
+            step.repeat = true;
+            return Ok(step);
+        }
+        asm.done = None;
         if asm.tile != Some((tx, ty)) {
             if let Some(old) = asm.tile {
                 step.dropped = Some(old);
@@ -228,6 +237,7 @@ impl<S: Storage> Session<S> {
             // `restore_tile` counts it.
             return match self.restore_tile(tx, ty, edge, l, Some(c)) {
                 Ok(()) => {
+                    asm.done = Some((tx, ty));
                     step.restored = Some((tx, ty));
                     Ok(step)
                 }

@@ -55,13 +55,30 @@ impl Serialize for RestoreData {
 impl<'de> Deserialize<'de> for RestoreData {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         struct Bytes;
-        impl Visitor<'_> for Bytes {
+        impl<'v> Visitor<'v> for Bytes {
             type Value = RestoreData;
             fn expecting(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
                 write!(f, "at most {RESTORE_PART_BYTES} bytes")
             }
             fn visit_bytes<E: serde::de::Error>(self, v: &[u8]) -> Result<RestoreData, E> {
                 RestoreData::new(v).ok_or_else(|| E::invalid_length(v.len(), &self))
+            }
+            // Self-describing formats (JSON) write bytes as a sequence of numbers.
+            fn visit_seq<A: serde::de::SeqAccess<'v>>(
+                self,
+                mut seq: A,
+            ) -> Result<RestoreData, A::Error> {
+                let mut bytes = [0u8; RESTORE_PART_BYTES];
+                let mut len = 0usize;
+                while let Some(b) = seq.next_element::<u8>()? {
+                    let slot = bytes
+                        .get_mut(len)
+                        .ok_or_else(|| A::Error::invalid_length(len.saturating_add(1), &self))?;
+                    *slot = b;
+                    len = len.saturating_add(1);
+                }
+                RestoreData::new(bytes.get(..len).unwrap_or(&[]))
+                    .ok_or_else(|| A::Error::invalid_length(len, &self))
             }
         }
         d.deserialize_bytes(Bytes).map_err(D::Error::custom)
