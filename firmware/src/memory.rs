@@ -9,7 +9,7 @@ use ogm_core::lidar::turn::Turns;
 use ogm_core::map::mapper::marks_len;
 use ogm_core::sampler::gibbs::{block_words, LocalRay};
 use ogm_core::sampler::ray_store::{StoredRay, StoredScan};
-use ogm_core::session::{Buffers, Session, Storage};
+use ogm_core::session::{Buffers, Session, Storage, TileRestore};
 use ogm_core::wire::{MAX_DEVICE_FRAME, MAX_TILE_BYTES};
 use ogm_core::{LogOdds, ScanBuf};
 use ogm_firmware::sizes::BoardSizes;
@@ -72,6 +72,8 @@ static TURNS: StaticBuf<Turns> = StaticBuf::new(Turns::new(Mount::ZERO, false));
 static TX: StaticBuf<[u8; MAX_DEVICE_FRAME]> = StaticBuf::new([0; MAX_DEVICE_FRAME]);
 /// One tile's cells, before encoding.
 static TILE: StaticBuf<[u8; MAX_TILE_BYTES]> = StaticBuf::new([0; MAX_TILE_BYTES]);
+/// A stored tile the host is sending back, being assembled.
+static RESTORE: StaticBuf<TileRestore> = StaticBuf::new(TileRestore::new());
 
 /// The mapping engine itself (~2.5 KiB, mostly the sampler's forward-model tables): a `static`
 /// too, so it lives in no stack frame.
@@ -113,5 +115,6 @@ pub fn take() -> Option<Memory<'static, Static>> {
         turns: TURNS.take()?,
         tx: TX.take()?,
         tile: TILE.take()?,
+        restore: RESTORE.take()?,
     })
 }

@@ -8,7 +8,8 @@
 //! an input fast. Invariants: nothing panics; log-odds stay within the clamp; the sampler's
 //! counts never exceed its samples. The same bytes also go through the robot loop's lidar
 //! path (`ogm_core::lidar::ld06::Ld06Parser` → `ogm_core::lidar::turn::Turns`, placed by the `Pose` frames
-//! among them, with any mounting) into the engine.
+//! among them, with any mounting) into the engine. `Restore` parts (any tile, layer, row and
+//! length, and whole tiles) go through `Session::restore_part`: every refusal is counted.
 #![no_main]
 
 use arbitrary::Arbitrary;
@@ -21,7 +22,8 @@ use ogm_core::lidar::link::{LinkRx, Step};
 use ogm_core::lidar::pose_track::Mount;
 use ogm_core::lidar::turn::{Turn, Turns};
 use ogm_core::session::{Owned, Session, Sizes};
-use ogm_core::wire::{self, HostMsg, MAX_HOST_FRAME};
+use ogm_core::session::TileRestore;
+use ogm_core::wire::{self, HostMsg, Layer, MAX_HOST_FRAME};
 use ogm_core::ScanBuf;
 
 const W: u16 = 64;
@@ -102,6 +104,21 @@ enum Item {
     Packets {
         count: u8,
         distance_mm: u16,
+    },
+    /// One `Restore` part: any tile, layer, row and length.
+    Restore {
+        tx: i8,
+        ty: i8,
+        layer: u8,
+        row: u8,
+        len: u8,
+        fill: u8,
+    },
+    /// A whole tile's 12 `Restore` parts (16-cell tiles), log-odds `value` in every cell.
+    RestoreTile {
+        tx: i8,
+        ty: i8,
+        value: i16,
     },
     Raw(Vec<u8>),
     Flip {
@@ -337,6 +354,40 @@ fuzz_target!(|items: Vec<Item>| {
                     );
                 }
             }
+            Item::Restore {
+                tx,
+                ty,
+                layer,
+                row,
+                len,
+                fill,
+            } => {
+                let n = usize::from(len) % (wire::RESTORE_PART_BYTES + 1);
+                let data = [fill; wire::RESTORE_PART_BYTES];
+                if let Some(data) = wire::RestoreData::new(&data[..n]) {
+                    frame(
+                        &mut bytes,
+                        &HostMsg::Restore {
+                            tx: i32::from(tx),
+                            ty: i32::from(ty),
+                            layer: [Layer::LogOdds, Layer::Counts, Layer::Sample]
+                                [usize::from(layer % 3)],
+                            row,
+                            data,
+                        },
+                    );
+                }
+            }
+            Item::RestoreTile { tx, ty, value } => {
+                let lo: Vec<u8> = (0..256).flat_map(|_| value.to_le_bytes()).collect();
+                let est = [128u8; 256];
+                let (tx, ty) = (i32::from(tx), i32::from(ty));
+                for m in wire::restore_msgs(tx, ty, Layer::LogOdds, 16, &lo)
+                    .chain(wire::restore_msgs(tx, ty, Layer::Counts, 16, &est))
+                {
+                    frame(&mut bytes, &m);
+                }
+            }
             Item::Raw(ref v) => bytes.extend(v.iter().take(256)),
             Item::Flip { at, xor } => {
                 if !bytes.is_empty() {
@@ -357,6 +408,8 @@ fuzz_target!(|items: Vec<Item>| {
     let mut turn_buf: ScanBuf<MAX_BEAMS> = ScanBuf::new();
     let mut parser = Ld06Parser::new();
     let mut turn_maps = 0u32;
+    let mut asm = TileRestore::new();
+    let mut restore_refusals = 0u32;
     let map_turn = |m: &mut Option<Session<Owned<u8>>>, t: Turn<'_>, n: &mut u32| {
         assert!(t.beams.len() <= MAX_BEAMS);
         if let Some(m) = m.as_mut() {
@@ -394,8 +447,32 @@ fuzz_target!(|items: Vec<Item>| {
                 map_turn(&mut machine, t, &mut turn_maps)
             });
         }
+        Step::Host(HostMsg::Restore {
+            tx,
+            ty,
+            layer,
+            row,
+            data,
+        }) => {
+            if let Some(m) = machine.as_mut() {
+                let before = m.window().restore_refused;
+                match m.restore_part(&mut asm, 16, tx, ty, layer, row, data.as_slice()) {
+                    Err(_) => {
+                        restore_refusals += 1;
+                        assert!(m.window().restore_refused > before, "a refusal not counted");
+                    }
+                    Ok(step) => {
+                        let counted = u32::from(step.dropped.is_some());
+                        assert_eq!(m.window().restore_refused, before + counted);
+                    }
+                }
+            }
+        }
         Step::Host(_) | Step::Error(_) => {}
     });
+    if let Some(m) = machine.as_ref() {
+        assert!(m.window().restore_refused >= restore_refusals);
+    }
     rx.finish(|_| {});
     parser.feed(&bytes, |p| {
         if let Ok(p) = p {

@@ -6,8 +6,8 @@
 use std::collections::HashMap;
 
 use ogm_core::config::{Budget, RunConfig};
-use ogm_core::session::{Owned, Session, Sizes};
-use ogm_core::wire::{self, Layer, TileRect, TileSource};
+use ogm_core::session::{Owned, RestoreError, Session, Sizes, TileRestore};
+use ogm_core::wire::{self, HostMsg, Layer, RestoreFault, TileRect, TileSource};
 use ogm_core::{Angle, Beam, Pose, Range};
 
 const CELL: i32 = 50;
@@ -136,6 +136,44 @@ fn tile_data(s: &impl TileSource, rect: &TileRect) -> (Vec<i16>, Vec<u8>) {
     (lo, est)
 }
 
+/// Sends building tile (`tx`, `ty`) through [`Session::restore_part`] in its wire parts
+/// (log-odds bytes `lo`, estimates `est`); whether the last part restored it.
+fn restore_by_parts(
+    w: &mut Session<Owned<u8>>,
+    asm: &mut TileRestore,
+    tx: i32,
+    ty: i32,
+    lo: &[u8],
+    est: &[u8],
+) -> Result<bool, RestoreError> {
+    let parts = wire::restore_msgs(tx, ty, Layer::LogOdds, EDGE, lo).chain(wire::restore_msgs(
+        tx,
+        ty,
+        Layer::Counts,
+        EDGE,
+        est,
+    ));
+    let mut restored = false;
+    let mut n = 0;
+    for m in parts {
+        let HostMsg::Restore {
+            tx,
+            ty,
+            layer,
+            row,
+            data,
+        } = m
+        else {
+            unreachable!()
+        };
+        let step = w.restore_part(asm, EDGE, tx, ty, layer, row, data.as_slice())?;
+        restored = step.restored == Some((tx, ty));
+        n += 1;
+    }
+    assert_eq!(n, 12, "8 log-odds and 4 estimate parts");
+    Ok(restored)
+}
+
 type Stored = HashMap<(i32, i32), (Vec<i16>, Vec<u8>)>;
 
 /// Log-odds by building cell.
@@ -155,6 +193,7 @@ fn run_window(poses: &[Pose], boxes: &[[f64; 4]], restore: bool) -> (Stitched, S
         "the margin covers the reach"
     );
     let mut stored: Stored = HashMap::new();
+    let mut asm = TileRestore::new();
     let tiles = i32::from(WIN / EDGE);
     for pose in poses {
         if let Some(shift) = w.check_shift(pose, EDGE) {
@@ -173,7 +212,12 @@ fn run_window(poses: &[Pose], boxes: &[[f64; 4]], restore: bool) -> (Stitched, S
                             continue;
                         }
                         if let Some((lo, est)) = stored.get(&(tx, ty)) {
-                            w.restore_tile(tx, ty, EDGE, lo, Some(est)).unwrap();
+                            // Through the wire's parts, as a host sends them.
+                            let lo: Vec<u8> = lo.iter().flat_map(|v| v.to_le_bytes()).collect();
+                            assert_eq!(
+                                restore_by_parts(&mut w, &mut asm, tx, ty, &lo, est),
+                                Ok(true)
+                            );
                         }
                     }
                 }
@@ -363,4 +407,87 @@ fn a_margin_without_a_band_is_refused() {
     assert!(!s.window_fits(EDGE), "60 + 16 > 64: no hysteresis band");
     assert!(s.window_fits(4));
     assert!(s.shift_for(&Pose::default(), EDGE).is_none());
+}
+
+#[test]
+fn restore_parts_are_checked_and_every_refusal_is_counted() {
+    let boxes = building();
+    // A fixed grid restores nothing.
+    let mut fixed = Session::new(config(), Owned::<u8>::buffers(&Sizes::grid(WIN, WIN))).unwrap();
+    let mut asm = TileRestore::new();
+    let part = [0u8; 64];
+    assert_eq!(
+        fixed.restore_part(&mut asm, EDGE, 0, 0, Layer::LogOdds, 0, &part),
+        Err(RestoreError::NoWindow)
+    );
+    assert_eq!(fixed.window().restore_refused, 1);
+
+    let cfg = config().with_window_margin_cells(MARGIN);
+    let mut w = Session::new(cfg, Owned::<u8>::buffers(&Sizes::grid(WIN, WIN))).unwrap();
+    let refused = std::cell::Cell::new(0);
+    let expect = |w: &Session<Owned<u8>>, r: Result<(), RestoreError>, e: RestoreError| {
+        assert_eq!(r, Err(e));
+        refused.set(refused.get() + 1);
+        assert_eq!(w.window().restore_refused, refused.get(), "{e}");
+    };
+    // Malformed parts: layer, row, length; and a tile outside the window.
+    let r = w.restore_part(&mut asm, EDGE, 1, 1, Layer::Sample, 0, &part[..32]);
+    expect(&w, r.map(|_| ()), RestoreError::Part(RestoreFault::Layer));
+    let r = w.restore_part(&mut asm, EDGE, 1, 1, Layer::LogOdds, 3, &part);
+    expect(&w, r.map(|_| ()), RestoreError::Part(RestoreFault::Row));
+    let r = w.restore_part(&mut asm, EDGE, 1, 1, Layer::LogOdds, 16, &part);
+    expect(&w, r.map(|_| ()), RestoreError::Part(RestoreFault::Row));
+    let r = w.restore_part(&mut asm, EDGE, 1, 1, Layer::Counts, 4, &part[..60]);
+    expect(&w, r.map(|_| ()), RestoreError::Part(RestoreFault::Length));
+    let r = w.restore_part(&mut asm, EDGE, 8, 0, Layer::LogOdds, 0, &part);
+    expect(&w, r.map(|_| ()), RestoreError::Outside);
+    let r = w.restore_part(&mut asm, EDGE, -1, 0, Layer::LogOdds, 0, &part);
+    expect(&w, r.map(|_| ()), RestoreError::Outside);
+    assert_eq!(asm.pending(), None, "refused parts keep nothing");
+
+    // An incomplete tile dropped for another is counted; repeats are idempotent.
+    let step = w
+        .restore_part(&mut asm, EDGE, 1, 1, Layer::LogOdds, 0, &part)
+        .unwrap();
+    assert_eq!((step.repeat, step.dropped), (false, None));
+    let step = w
+        .restore_part(&mut asm, EDGE, 1, 1, Layer::LogOdds, 0, &part)
+        .unwrap();
+    assert!(step.repeat);
+    let step = w
+        .restore_part(&mut asm, EDGE, 2, 1, Layer::LogOdds, 0, &part)
+        .unwrap();
+    assert_eq!(step.dropped, Some((1, 1)));
+    refused.set(refused.get() + 1);
+    assert_eq!(w.window().restore_refused, refused.get());
+
+    // A whole tile where the robot has mapped is refused; an unmapped one is restored.
+    let pose = Pose::new(3200, 3200, Angle::ZERO);
+    let beams = scan(&boxes, &pose);
+    w.insert(&pose, &beams).unwrap();
+    let mut lo = vec![0u8; 512];
+    lo[0] = 7; // cell (0, 0): log-odds 7
+    let est = vec![200u8; 256];
+    let (ox, oy) = (w.window().origin_x / 16, w.window().origin_y / 16);
+    let r = restore_by_parts(&mut w, &mut asm, ox + 4, oy + 4, &lo, &est);
+    refused.set(refused.get() + 1); // its first part dropped the incomplete tile (2, 1)
+    expect(&w, r.map(|_| ()), RestoreError::Mapped);
+    assert_eq!(
+        restore_by_parts(&mut w, &mut asm, ox + 7, oy + 7, &lo, &est),
+        Ok(true)
+    );
+    assert_eq!(w.window().tiles_restored, 1);
+    assert_eq!(w.window().restore_refused, refused.get());
+    let i = 7 * 16 * usize::from(WIN) + 7 * 16;
+    assert_eq!(w.log_odds()[i].raw(), 7);
+    // Its parts repeated right after (a host sending every frame twice): ignored.
+    let r = restore_by_parts(&mut w, &mut asm, ox + 7, oy + 7, &lo, &est);
+    assert_eq!(r, Ok(false));
+    assert_eq!(w.window().restore_refused, refused.get());
+    // After another tile, a second restore finds it no longer unknown: refused.
+    let r = restore_by_parts(&mut w, &mut asm, ox + 6, oy + 7, &lo, &est);
+    assert_eq!(r, Ok(true));
+    let r = restore_by_parts(&mut w, &mut asm, ox + 7, oy + 7, &lo, &est);
+    expect(&w, r.map(|_| ()), RestoreError::Mapped);
+    assert_eq!(w.window().tiles_restored, 2);
 }

@@ -32,7 +32,7 @@ use embedded_io::Write;
 use ogm_core::config::{LidarModel, RunConfig};
 use ogm_core::lidar::link::LinkRx;
 use ogm_core::lidar::turn::Turns;
-use ogm_core::session::{Buffers, Session, Sizes, Storage};
+use ogm_core::session::{Buffers, Session, Sizes, Storage, TileRestore};
 use ogm_core::wire::{self, Counters, ErrorCode};
 use ogm_core::ScanBuf;
 
@@ -66,6 +66,7 @@ impl<'a, S: Storage> App<'a, S> {
                 sizes,
                 tx: memory.tx,
                 tile: memory.tile,
+                restore: memory.restore,
                 dirty: [0; DIRTY_WORDS],
                 dirty_cursor: 0,
                 count_cursor: 0,
@@ -204,6 +205,8 @@ pub struct Memory<'a, S: Storage> {
     pub tx: &'a mut [u8; wire::MAX_DEVICE_FRAME],
     /// One tile's cells, before encoding.
     pub tile: &'a mut [u8; wire::MAX_TILE_BYTES],
+    /// A stored tile the host is sending back, being assembled (768 B of cells).
+    pub restore: &'a mut TileRestore,
 }
 
 /// What [`App::feed`] did.
@@ -227,6 +230,7 @@ pub(crate) struct State<'a, S: Storage> {
     sizes: Sizes,
     tx: &'a mut [u8; wire::MAX_DEVICE_FRAME],
     tile: &'a mut [u8; wire::MAX_TILE_BYTES],
+    restore: &'a mut TileRestore,
     dirty: [u32; DIRTY_WORDS],
     dirty_cursor: usize,
     count_cursor: usize,

@@ -92,6 +92,16 @@ impl<S: Storage> State<'_, S> {
                 self.process_scan(link, platform, &scan);
                 After::Scan(seq)
             }
+            Step::Host(wire::HostMsg::Restore {
+                tx,
+                ty,
+                layer,
+                row,
+                data,
+            }) => {
+                self.on_restore(link, tx, ty, layer, row, data.as_slice());
+                After::Nothing
+            }
             Step::Host(wire::HostMsg::Finish) => After::Finish,
             Step::Host(wire::HostMsg::Idle { seq, period_us }) => {
                 self.idle(link, platform, seq, period_us);
@@ -105,6 +115,41 @@ impl<S: Storage> State<'_, S> {
                 let (code, detail) = e.code();
                 self.report_error(link, code, detail);
                 After::Nothing
+            }
+        }
+    }
+
+    /// A part of a stored tile from the host: checked, assembled, and the tile restored once
+    /// complete ([`Session::restore_part`]: only a tile inside the window that the robot has not
+    /// mapped since it entered). Work: one part's copy, and one pass over the tile's 256 cells
+    /// when it completes. Every refusal is counted in the session's `WindowReport` and reported
+    /// (`ErrorCode::Restore`, a [`wire::RestoreFault`]).
+    fn on_restore<W: Write>(
+        &mut self,
+        link: &mut W,
+        tx: i32,
+        ty: i32,
+        layer: wire::Layer,
+        row: u8,
+        data: &[u8],
+    ) {
+        let Some(m) = self.session.as_deref_mut() else {
+            self.report_error(link, ErrorCode::NoConfig, 0);
+            return;
+        };
+        match m.restore_part(self.restore, EDGE as u16, tx, ty, layer, row, data) {
+            Ok(step) => {
+                if step.dropped.is_some() {
+                    let detail = wire::RestoreFault::Dropped.detail();
+                    self.report_error(link, ErrorCode::Restore, detail);
+                }
+                if let Some((x, y)) = step.restored {
+                    info!("restored tile ({=i32}, {=i32})", x, y);
+                }
+            }
+            Err(e) => {
+                warn!("restore ({=i32}, {=i32}): {}", tx, ty, e.fault());
+                self.report_error(link, ErrorCode::Restore, e.fault().detail());
             }
         }
     }

@@ -36,6 +36,8 @@ mod log_run;
 mod qemu;
 mod replay;
 mod report;
+#[cfg(test)]
+mod restore;
 pub mod robot;
 mod run;
 mod setup;

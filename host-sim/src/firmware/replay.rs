@@ -106,6 +106,7 @@ pub struct HostMemory<N: Count> {
     turns: ogm_core::lidar::turn::Turns,
     tx: [u8; ogm_core::wire::MAX_DEVICE_FRAME],
     tile: [u8; ogm_core::wire::MAX_TILE_BYTES],
+    restore: ogm_core::session::TileRestore,
 }
 
 impl<N: Count> HostMemory<N> {
@@ -121,6 +122,7 @@ impl<N: Count> HostMemory<N> {
             ),
             tx: [0; ogm_core::wire::MAX_DEVICE_FRAME],
             tile: [0; ogm_core::wire::MAX_TILE_BYTES],
+            restore: ogm_core::session::TileRestore::new(),
         })
     }
 
@@ -135,15 +137,16 @@ impl<N: Count> HostMemory<N> {
             turns: &mut self.turns,
             tx: &mut self.tx,
             tile: &mut self.tile,
+            restore: &mut self.restore,
         })
     }
 }
 
 /// The host as the firmware application's platform: no clock, and exactly the sampler updates
 /// the firmware reported for each scan and idle period.
-struct HostPlatform<F> {
-    updates: F,
-    missing: Option<Work>,
+pub(super) struct HostPlatform<F> {
+    pub(super) updates: F,
+    pub(super) missing: Option<Work>,
 }
 
 impl<F: Fn(Work) -> Option<u32>> Platform for HostPlatform<F> {

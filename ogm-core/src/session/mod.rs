@@ -33,10 +33,12 @@
 //! firmware, `Vec`s on the host ([`Owned`], feature `alloc`) — is one [`Storage`] type.
 
 mod insert;
+mod restore;
 mod settings;
 mod window;
 
 pub use insert::Inserted;
+pub use restore::{RestoreError, RestoreStep, TileRestore, MAX_RESTORE_CELLS};
 pub use window::{LeavingTile, Shift};
 
 use crate::config::RunConfig;

@@ -247,6 +247,8 @@ pub enum ErrorCode {
     Link,
     /// A pose not newer than the last one, dropped (`detail`: its time, ms, saturated).
     PoseOrder,
+    /// A [`super::HostMsg::Restore`] part or tile refused (`detail`: a [`RestoreFault`]).
+    Restore,
 }
 
 /// Defines a `u32`-numbered detail enum of [`DeviceError::detail`] with its `Display`.
@@ -396,4 +398,27 @@ pub struct WindowReport {
     pub tiles_restored: u32,
     /// Stored tiles refused (outside the window, wrong size, already mapped).
     pub restore_refused: u32,
+}
+
+detail_enum! {
+    /// Why a stored tile sent back was refused: the `detail` of [`ErrorCode::Restore`] (each
+    /// also counted in [`WindowReport::restore_refused`]).
+    RestoreFault {
+        /// A layer other than `LogOdds` or `Counts`.
+        Layer = 0 => "restore: layer not LogOdds or Counts",
+        /// `row` does not start a part inside the tile.
+        Row = 1 => "restore: row not at a part's start inside the tile",
+        /// The part's data is not exactly its rows' bytes.
+        Length = 2 => "restore: part of the wrong length",
+        /// The device's tiles cannot travel in restore parts (a row over 64 bytes).
+        Edge = 3 => "restore: tile edge too large for a part",
+        /// The tile does not lie (whole) inside the current window.
+        Outside = 4 => "restore: tile not inside the window",
+        /// A cell of the tile was mapped since it entered the window.
+        Mapped = 5 => "restore: tile already mapped on this visit",
+        /// An incomplete tile was dropped because parts of another tile began.
+        Dropped = 6 => "restore: incomplete tile dropped for another",
+        /// No rolling window (a fixed grid) or no settings yet.
+        NoWindow = 7 => "restore: no rolling window",
+    }
 }

@@ -5,6 +5,8 @@ use serde::{Deserialize, Serialize};
 use crate::config::RunConfig;
 use crate::types::geometry::Pose;
 
+use super::{Layer, RestoreData};
+
 /// Host → device.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -50,5 +52,23 @@ pub enum HostMsg {
         t_us: u64,
         /// The robot's pose (not the lidar's: [`RunConfig::mount`] is applied on the device).
         pose: Pose,
+    },
+    /// Rows `row ..` of building tile (`tx`, `ty`)'s `layer` (`LogOdds` or `Counts`), a
+    /// stored tile sent back as the rolling window comes over it again (version 6, appended:
+    /// the older variants keep their indices). A part carries
+    /// [`super::restore_rows_per_part`] rows; the device checks it
+    /// ([`super::check_restore_part`]), assembles the tile and restores it once every part of
+    /// both layers has arrived ([`crate::session::TileRestore`]).
+    Restore {
+        /// Building tile column.
+        tx: i32,
+        /// Building tile row.
+        ty: i32,
+        /// `LogOdds` or `Counts`.
+        layer: Layer,
+        /// The first row of the tile this part carries (row 0 = lowest y).
+        row: u8,
+        /// The rows' cells, row-major, as a [`super::Tile`] of `layer` carries them.
+        data: RestoreData,
     },
 }

@@ -30,11 +30,13 @@ mod fnv;
 mod frame;
 mod host;
 mod ranges;
+mod restore;
 mod tile;
 
 pub use device::{
     ConfigFault, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello, IdleReport,
-    LidarCounters, LinkCounters, LinkFault, SamplerReport, ScanReport, StoreReport, WindowReport,
+    LidarCounters, LinkCounters, LinkFault, RestoreFault, SamplerReport, ScanReport, StoreReport,
+    WindowReport,
 };
 pub use error::WireError;
 pub use fnv::{fnv1a, grid_fnv, FNV_START};
@@ -44,6 +46,10 @@ pub use frame::{
 pub use host::HostMsg;
 pub use ranges::{
     encode_ranges, ScanRanges, RANGE_NONE, RANGE_NO_RETURN, SCAN_BINS, SCAN_RANGES_LEN,
+};
+pub use restore::{
+    check_restore_part, restore_cell_bytes, restore_msgs, restore_parts, restore_rows_per_part,
+    RestoreData, RESTORE_PART_BYTES,
 };
 pub use tile::{
     decode_tile, encode_tile, Layer, Tile, TileRect, TileSink, TileSource, MAX_TILE_BYTES,
