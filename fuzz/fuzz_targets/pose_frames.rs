@@ -21,8 +21,8 @@ use ogm_core::lidar::ld06::{Packet, Point, POINTS};
 use ogm_core::lidar::link::{LinkRx, Step};
 use ogm_core::lidar::pose_track::Mount;
 use ogm_core::lidar::turn::{Turn, Turns};
-use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::session::TileRestore;
+use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::wire::{self, HostMsg, Layer, MAX_HOST_FRAME};
 use ogm_core::ScanBuf;
 
