@@ -8,96 +8,29 @@ use std::collections::HashMap;
 use ogm_core::config::{Budget, RunConfig};
 use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::wire::{self, DeviceMsg, ErrorCode, HostMsg, Layer, WindowReport};
-use ogm_core::{Angle, Beam, Pose, Range};
+use ogm_core::{Beam, Pose};
 use ogm_field::stream::host_frame;
 
 use super::input::scan_packets;
 use super::replay::{HostMemory, HostPlatform, FIRMWARE_SIZES};
+use crate::sim::boxes;
 
 const CELL: i32 = 50;
 const MAX_RANGE: u32 = 3000;
 const MARGIN: u16 = 72;
 const EDGE: u16 = 16;
 
-/// A 30 m × 14 m building: outer walls and a seeded scatter of pillars.
-fn building() -> Vec<[f64; 4]> {
-    let mut b = vec![
-        [-200.0, -200.0, 30_200.0, 0.0],
-        [-200.0, 14_000.0, 30_200.0, 14_200.0],
-        [-200.0, -200.0, 0.0, 14_200.0],
-        [30_000.0, -200.0, 30_200.0, 14_200.0],
-    ];
-    let mut s = 0x9E37_79B9_7F4A_7C15u64;
-    let mut next = || {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        (s % 1000) as f64 / 1000.0
-    };
-    for _ in 0..30 {
-        let (x, y) = (1_000.0 + next() * 28_000.0, 1_000.0 + next() * 12_000.0);
-        let (w, h) = (200.0 + 400.0 * next(), 200.0 + 400.0 * next());
-        b.push([x, y, x + w, y + h]);
-    }
-    b
-}
-
-/// Range to the nearest box along a ray (slab test), if within `max`.
-fn cast(boxes: &[[f64; 4]], x: f64, y: f64, a: f64, max: f64) -> Option<f64> {
-    let (dx, dy) = (a.cos(), a.sin());
-    let mut best = f64::INFINITY;
-    for [x0, y0, x1, y1] in boxes {
-        let (mut t0, mut t1) = (0.0f64, max);
-        for (p, d, lo, hi) in [(x, dx, *x0, *x1), (y, dy, *y0, *y1)] {
-            if d.abs() < 1e-12 {
-                if p < lo || p > hi {
-                    t0 = f64::INFINITY;
-                }
-            } else {
-                let (a, b) = ((lo - p) / d, (hi - p) / d);
-                t0 = t0.max(a.min(b));
-                t1 = t1.min(a.max(b));
-            }
-        }
-        if t0 <= t1 && t0 < best {
-            best = t0;
-        }
-    }
-    (best < max).then_some(best)
-}
-
-/// Scans every 300 mm along the waypoints (m): 120 beams 3° apart, whole-mm ranges.
+/// Scans every 300 mm through a 30 m × 14 m building of seeded pillars.
 fn scans(waypoints: &[(f64, f64)]) -> Vec<(Pose, Vec<Beam>)> {
-    let boxes = building();
-    let mut out = Vec::new();
-    for w in waypoints.windows(2) {
-        let ((x0, y0), (x1, y1)) = (w[0], w[1]);
-        let n = (((x1 - x0).powi(2) + (y1 - y0).powi(2)).sqrt() / 0.3).ceil() as usize;
-        for k in 0..n {
-            let t = k as f64 / n as f64;
-            let pose = Pose::new(
-                ((x0 + t * (x1 - x0)) * 1000.0).round() as i32,
-                ((y0 + t * (y1 - y0)) * 1000.0).round() as i32,
-                Angle(((k * 977) % 65_536) as u16),
-            );
-            let beams = (0..120)
-                .map(|b| {
-                    let angle = Angle::from_centidegrees(300 * b);
-                    let a = pose.heading.to_radians() + angle.to_radians();
-                    let (x, y) = (f64::from(pose.x_mm), f64::from(pose.y_mm));
-                    Beam {
-                        angle,
-                        range: match cast(&boxes, x, y, a, f64::from(MAX_RANGE) + 1000.0) {
-                            Some(r) if r >= 20.0 => Range::Hit(r.round() as u32),
-                            _ => Range::NoReturn,
-                        },
-                    }
-                })
-                .collect();
-            out.push((pose, beams));
-        }
-    }
-    out
+    boxes::scans(
+        &boxes::building(14_000.0, 30, false),
+        waypoints,
+        0.3,
+        MAX_RANGE,
+    )
+    .into_iter()
+    .map(|s| (s.pose, s.beams))
+    .collect()
 }
 
 /// What the online host saw.

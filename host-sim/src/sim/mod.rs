@@ -6,6 +6,7 @@
 //! `host-sim firmware` sends them as LD06 packets with pose frames (see
 //! `ogm_core::lidar::source` for why that byte stream is the one seam).
 
+pub mod boxes;
 pub mod carmen;
 pub mod explore;
 pub mod generate;
