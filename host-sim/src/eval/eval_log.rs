@@ -47,14 +47,14 @@ use ogm_field::world::{Truth, World};
 use serde::{Deserialize, Serialize};
 
 use crate::eval::baselines::{self, BaselineConfig, Method as BaselineMethod, SensorModel};
-use crate::eval::metrics::{mask_within, PrAccumulator, Summary};
-use crate::eval::noise::MIN_SIGMA_CELLS;
+use crate::eval::log_maps::{benchmark, map_experiment, ExperimentMaps};
+use crate::eval::metrics::{mask_within, Summary};
 use crate::eval::render;
 use crate::eval::report::{MapInfo, Report};
 use crate::eval::sampling::{run_sampler, SamplingConfig, Variant};
 use crate::sim::carmen::{read_log, LogInfo, ReadOptions};
 use crate::sim::explore::ScanRecord;
-use crate::sim::{insert_scan, mark_observed, new_mapper, probabilities, MAX_BEAMS};
+use crate::sim::{insert_scan, mark_observed, new_mapper, MAX_BEAMS};
 
 /// The benchmark threshold of the paper: occupied iff p > 0.20.
 pub const BENCHMARK_THRESHOLD: f64 = 0.20;
@@ -150,6 +150,10 @@ pub struct EvalLogArgs {
     /// is made from the unperturbed log).
     #[command(flatten)]
     pub perturb: crate::eval::perturb::PerturbArgs,
+    /// Wheel odometry instead of the log's poses, with and without scan matching
+    /// ([`crate::eval::eval_odometry`]).
+    #[command(flatten)]
+    pub odometry: crate::eval::eval_odometry::OdometryArgs,
 }
 
 /// Replays recorded scans in order, like a sensor; `Err(EndOfLog)` after the last.
@@ -602,6 +606,13 @@ pub fn run(args: &EvalLogArgs) -> anyhow::Result<()> {
     };
     let cfg = MethodsConfig::new(&args.map)?;
     args.perturb.validate()?;
+    if args.odometry.is_active() {
+        return crate::eval::eval_odometry::run(args, &logs, &variants, &cfg, &experiments);
+    }
+    ensure!(
+        !args.odometry.no_match,
+        "--no-match needs --odometry-drift or --truth-poses"
+    );
     let mut reports = Vec::new();
     for log in &logs {
         let dir = if logs.len() == 1 {
@@ -798,17 +809,7 @@ fn eval_one(
         setup.scans.len(),
         f64::from(setup.mapper.max_range_mm) / 1000.0
     );
-    // Benchmark.
-    let bench = map_scans(g, setup.mapper, &setup.scans)?;
-    let bench_probs = probabilities(&bench.map);
-    let truth = benchmark_truth(&bench_probs, &bench.observed, BENCHMARK_THRESHOLD);
-    let world = World {
-        width: w,
-        height: h,
-        resolution_m: res,
-        origin_m: origin,
-        cells: truth,
-    };
+    let (world, bench) = benchmark(&setup)?;
     let bench_near = mask_within(&bench.observed, w, h, NEAR_MAPPED_CELLS);
     let tc = world.counts();
     let benchmark = BenchmarkInfo {
@@ -841,56 +842,25 @@ fn eval_one(
     for &id in experiments {
         let e = Experiment::new(id)?;
         let scans = e.select(perturbed.as_deref().unwrap_or(&setup.scans));
-        let t = map_scans(g, setup.mapper, &scans)?;
-        let near = mask_within(&t.observed, w, h, NEAR_MAPPED_CELLS);
-        let mut maps: BTreeMap<String, Vec<f64>> = BTreeMap::new();
-        let mut seconds = BTreeMap::new();
-        let mut per_sample = BTreeMap::new();
-        maps.insert("traditional".into(), probabilities(&t.map));
-        seconds.insert("traditional".to_string(), t.seconds);
-        let mut iterations = BTreeMap::new();
-        let mut graph = None;
-        // The sensor's noise, from this experiment's own data.
-        let noise = crate::eval::noise::estimate(&g, &setup.mapper, &scans, &t.map);
-        // The forward models read the MAD's σ; the robot's settings the mixture's σ and τ.
-        let cfg = &match (cfg.estimate_sigma, noise) {
-            (true, Some(n)) => cfg
-                .with_sigma(n.sigma_cells.max(MIN_SIGMA_CELLS))
-                .with_sensor(n.sensor()),
-            _ => cfg.clone(),
-        };
-        if let Some(n) = noise {
-            eprintln!(
-                "{} experiment {id}: estimated range noise σ = {:.2} cells, {:.1} % outliers ({} hits); mixture σ {:.2}, ε {:.1} %, unmatched {:.1} %{}",
-                setup.name,
-                n.sigma_cells,
-                100.0 * n.outlier_rate,
-                n.hits,
-                n.sigma_mixture,
-                100.0 * n.outlier_mixture,
-                100.0 * n.unmatched,
-                if cfg.estimate_sigma { "" } else { " (not used: --sigma-cells)" }
-            );
-        }
-        for &m in methods {
-            eprintln!("{} experiment {id}: {}", setup.name, m.name());
-            let o = run_log_method(m, &setup, &scans, &t.map, cfg, &mut graph)?;
-            seconds.insert(m.name().to_string(), o.seconds);
-            per_sample.insert(m.name().to_string(), o.seconds_per_sample);
-            iterations.insert(m.name().to_string(), o.iterations);
-            maps.insert(m.name().into(), o.probs);
-        }
-        drop(graph);
-        let mut all = BTreeMap::new();
-        let mut near_sum = BTreeMap::new();
-        for (name, probs) in &maps {
-            let mut a = PrAccumulator::new();
-            a.add(probs, &world.cells, None)?;
-            all.insert(name.clone(), a.summary());
-            let mut n = PrAccumulator::new();
-            n.add(probs, &world.cells, Some(&near))?;
-            near_sum.insert(name.clone(), n.summary());
-        }
+        let em = map_experiment(
+            &setup,
+            &scans,
+            methods,
+            cfg,
+            &format!("{} experiment {id}", setup.name),
+        )?;
+        let (all, near_sum) = em.score(&world)?;
+        let ExperimentMaps {
+            mapped: t,
+            near,
+            maps,
+            seconds,
+            per_sample,
+            iterations,
+            noise,
+            cfg,
+        } = em;
+        let cfg = &cfg;
         write_experiment_images(
             out,
             id,
