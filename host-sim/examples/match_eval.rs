@@ -56,6 +56,9 @@ struct Args {
     /// Do not match: map on odometry alone.
     #[arg(long)]
     no_match: bool,
+    /// Match against a map made with the robot's face band (`RunConfig::ROBOT` as it is).
+    #[arg(long)]
+    face_band: bool,
     /// Matcher settings, `name=value` (comma-separated): levels, radius, coarse_radius,
     /// coarse_thin, reg_q8, cauchy_q8, prior_rot, prior_trans_q8, iterations, max_range_mm,
     /// min_spacing_mm, budget_reads, min_drop_permille, min_overlap_permille,
@@ -146,6 +149,7 @@ fn main() -> anyhow::Result<()> {
     let settings = TrackSettings {
         matcher: matcher_config(&a)?,
         matching: !a.no_match,
+        face_band: a.face_band,
     };
     if a.cell_mm == 0 || !a.range_cap_m.is_finite() || a.range_cap_m <= 0.0 {
         bail!("--cell-mm and --range-cap-m must be positive");

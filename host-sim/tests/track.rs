@@ -367,3 +367,43 @@ fn truth_poses_must_match_the_log() {
         .arg(dir.path().join("o2")));
     assert!(!ok && text.contains("--no-match"), "{text}");
 }
+
+// ---------------------------------------------------------------------------------------------
+// The shared logs (skipped without ../shared).
+
+fn shared_logs() -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/logs");
+    p.is_dir().then_some(p)
+}
+
+#[test]
+fn tracking_a_shared_log_takes_out_the_drift() {
+    let Some(dir) = shared_logs() else {
+        eprintln!("SKIPPED: ../shared/data/logs not found");
+        return;
+    };
+    use host_sim::sim::carmen::{read_log, ReadOptions};
+    // The two logs where the 100-scan bar holds on every seed (docs/results.md, "Odometry and
+    // scan matching on real logs"): measured with the cheap robot's odometry, seed 1,
+    // freiburg-101 0.014 / 0.007 and seattle 0.026 / 0.029 (translation / rotation ratio).
+    for name in ["freiburg-101", "seattle"] {
+        let log = read_log(
+            &dir.join(format!("{name}-corrected.log.gz")),
+            &ReadOptions::default(),
+        )
+        .unwrap();
+        let range = (log.info.max_range_m().min(20.0) * 1000.0) as u32;
+        let truth: Vec<Pose> = log.scans.iter().map(|s| s.pose).collect();
+        let odometry = drift(&truth, OdometryModel::CHEAP_ROBOT, 1);
+        let scans = with_poses(&log.scans, &odometry).unwrap();
+        let g = log_geometry(&scans, 0.05, range, TRACK_MARGIN_M).unwrap();
+        let t = track(&scans, g, range, &TrackSettings::default()).unwrap();
+        let (o, m) = (rpe_all(&truth, &odometry), rpe_all(&truth, &t.poses));
+        let (rt, rr) = (m[2].trans_m / o[2].trans_m, m[2].rot_deg / o[2].rot_deg);
+        eprintln!(
+            "{name}: 100-scan ratio {rt:.3} / {rr:.3}, verdicts {}",
+            t.verdicts.short()
+        );
+        assert!(rt < 0.1 && rr < 0.1, "{name}: {rt} {rr}");
+    }
+}
