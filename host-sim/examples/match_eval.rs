@@ -13,10 +13,12 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use clap::Parser;
 use host_sim::eval::eval_log::{log_geometry, log_name};
-use host_sim::eval::eval_odometry::{model_named, TRACK_MARGIN_M};
+use host_sim::eval::odometry_args::model_named;
 use host_sim::eval::pose_error::{position_error, ratio, rpe_all, Rpe};
 use host_sim::sim::carmen::{read_log, ReadOptions};
-use host_sim::sim::track::{drift, track, with_poses, TrackSettings, VerdictCounts};
+use host_sim::sim::track::{
+    drift, track, with_poses, TrackSettings, VerdictCounts, TRACK_MARGIN_M,
+};
 use ogm_core::localize::odometry::OdometryModel;
 use ogm_core::localize::MatchConfig;
 use ogm_core::{Angle, LogOdds, Pose};

@@ -45,10 +45,9 @@ use crate::eval::eval_log::{
     benchmark_truth, log_geometry, map_scans, parse_methods, run_log_method, setup_log, Experiment,
     LogMapArgs, LogSetup, MethodsConfig, BENCHMARK_THRESHOLD, MARGIN_M,
 };
-use crate::eval::eval_odometry::TRACK_MARGIN_M;
 use crate::eval::render::SIDE_BY_SIDE_GAP_PX;
 use crate::sim::probabilities;
-use crate::sim::track::{track, with_poses, TrackSettings};
+use crate::sim::track::{track, with_poses, TrackSettings, TRACK_MARGIN_M};
 
 /// `host-sim export` options.
 #[derive(clap::Args, Clone, Debug)]

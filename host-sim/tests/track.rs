@@ -7,12 +7,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use host_sim::eval::eval_log::log_geometry;
-use host_sim::eval::eval_odometry::TRACK_MARGIN_M;
 use host_sim::eval::pose_error::{position_error, rpe, rpe_all, rpe_f};
 use host_sim::sim::explore::{ExploreConfig, ScanRecord};
 use host_sim::sim::generate::default_world;
 use host_sim::sim::lidar::LidarConfig;
-use host_sim::sim::track::{drift, track, with_poses, TrackSettings};
+use host_sim::sim::track::{drift, track, with_poses, TrackSettings, TRACK_MARGIN_M};
 use host_sim::sim::{simulate, SimConfig};
 use ogm_core::localize::odometry::{OdometryModel, PoseF};
 use ogm_core::{Angle, Pose, Range};

@@ -16,158 +16,39 @@
 //!   the matched poses, traditionally and by `--methods`, and scored near their own mapped cells.
 //!   Cells a drifting run puts outside the benchmark's grid are lost (they would be wrong anyway).
 //!
-//! Output: the tables on stdout, `DIR/report.json` ([`OdometryReport`]) per log; with several
+//! Output: the tables on stdout ([`crate::eval::odometry_report::tables`]), `DIR/report.json`
+//! ([`OdometryReport`]) per log; with several
 //! logs each gets `DIR/<name>/` and `DIR/summary.md` / `summary.json` hold the tables.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use anyhow::{bail, ensure, Context};
+use anyhow::{ensure, Context};
 use ogm_core::localize::odometry::OdometryModel;
 use ogm_core::Pose;
-use serde::{Deserialize, Serialize};
 
-use crate::eval::eval_log::{
-    log_geometry, log_name, setup_log, EvalLogArgs, Experiment, LogMethod, LogSetup, MethodsConfig,
-    MARGIN_M,
+use crate::eval::eval_log::EvalLogArgs;
+use crate::eval::log_maps::{benchmark, map_experiment, parse_methods, LogMethod, MethodsConfig};
+use crate::eval::log_setup::{
+    collect_logs, log_geometry, log_name, setup_log, Experiment, LogSetup, MARGIN_M,
 };
-use crate::eval::log_maps::{benchmark, map_experiment};
-use crate::eval::pose_error::{position_error, ratio, rpe_all, Rpe};
+use crate::eval::odometry_report::{ExperimentF1, OdometryReport, OdometryRun, PosesResult};
+use crate::eval::pose_error::{position_error, rpe_all};
 use crate::sim::carmen::{read_log, ReadOptions};
-use crate::sim::track::{drift, track, with_poses, TrackSettings, VerdictCounts};
+use crate::sim::track::{drift, track, with_poses, TrackSettings, TRACK_MARGIN_M};
 
-/// Margin (m) of the robot's map around the odometry's extent: room for the matched poses.
-pub const TRACK_MARGIN_M: f64 = 10.0;
-
-/// eval-log's odometry options.
-#[derive(clap::Args, Clone, Debug)]
-pub struct OdometryArgs {
-    /// Drift the log's poses (the truth) into wheel odometry with these seeds (comma-separated,
-    /// one run each), map on the odometry with and without scan matching, and score the maps
-    /// against the benchmark of the true poses.
-    #[arg(long, value_delimiter = ',', conflicts_with = "truth_poses")]
-    pub odometry_drift: Vec<u64>,
-    /// With --odometry-drift: `issue39` (issue 39's mild model: 1 % of the distance, 2 % of the
-    /// turn, 0.11°/m heading bias) or `cheap` (an uncalibrated small robot;
-    /// `ogm_core::localize::odometry::OdometryModel::CHEAP_ROBOT`).
-    #[arg(long, default_value = "issue39")]
-    pub odometry_model: String,
-    /// A log whose poses are the truth for the given log's scans (whose own poses are then the
-    /// odometry); same number of scans.
-    #[arg(long)]
-    pub truth_poses: Option<PathBuf>,
-    /// With --odometry-drift / --truth-poses: do not track; report odometry only.
-    #[arg(long)]
-    pub no_match: bool,
-}
-
-impl Default for OdometryArgs {
-    /// Off (the log's poses are used as they are).
-    fn default() -> Self {
-        OdometryArgs {
-            odometry_drift: Vec::new(),
-            odometry_model: "issue39".into(),
-            truth_poses: None,
-            no_match: false,
-        }
-    }
-}
-
-impl OdometryArgs {
-    /// Whether an odometry evaluation was asked for.
-    pub fn is_active(&self) -> bool {
-        !self.odometry_drift.is_empty() || self.truth_poses.is_some()
-    }
-
-    /// The model `--odometry-model` names.
-    pub fn model(&self) -> anyhow::Result<OdometryModel> {
-        model_named(&self.odometry_model)
-    }
-}
-
-/// The odometry model of a name: `issue39` or `cheap`.
-pub fn model_named(name: &str) -> anyhow::Result<OdometryModel> {
-    Ok(match name {
-        "issue39" => OdometryModel::ISSUE_39,
-        "cheap" => OdometryModel::CHEAP_ROBOT,
-        other => bail!("--odometry-model `{other}`: expected issue39 or cheap"),
-    })
-}
-
-/// Max F1 of each map of one experiment.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct ExperimentF1 {
-    /// 1, 2 or 3.
-    pub experiment: u8,
-    /// Max F1 near the experiment's mapped cells (eval-log's figure), per method.
-    pub near_mapped: BTreeMap<String, f64>,
-    /// Max F1 over all cells the benchmark knows, per method.
-    pub all: BTreeMap<String, f64>,
-}
-
-/// One trajectory's figures.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct PosesResult {
-    /// Relative pose error against the truth at 1, 10 and 100 scans.
-    pub rpe: Vec<Rpe>,
-    /// Absolute position error against the truth, m: mean and largest.
-    pub position_error_m: (f64, f64),
-    /// The maps made at these poses.
-    pub maps: Vec<ExperimentF1>,
-}
-
-/// One odometry run (one seed, or the given log's odometry).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct OdometryRun {
-    /// The drift seed (`None`: `--truth-poses`).
-    pub seed: Option<u64>,
-    /// The odometry.
-    pub odometry: PosesResult,
-    /// The matched poses (`None` with `--no-match`).
-    pub matched: Option<PosesResult>,
-    /// How the matches went.
-    pub verdicts: Option<VerdictCounts>,
-}
-
-impl OdometryRun {
-    /// matched / odometry relative pose error at index `k` of [`crate::eval::pose_error::RPE_DELTAS`]:
-    /// (translation, rotation); NaN without matching.
-    pub fn ratios(&self, k: usize) -> (f64, f64) {
-        let (Some(m), Some(o)) = (
-            self.matched.as_ref().and_then(|m| m.rpe.get(k)),
-            self.odometry.rpe.get(k),
-        ) else {
-            return (f64::NAN, f64::NAN);
-        };
-        (ratio(m.trans_m, o.trans_m), ratio(m.rot_deg, o.rot_deg))
-    }
-}
-
-/// `DIR/report.json` of one log.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct OdometryReport {
-    /// Log name.
-    pub log: String,
-    /// Where the truth came from: `the log's poses` or the `--truth-poses` file.
-    pub truth: String,
-    /// `--odometry-model` (with `--odometry-drift`).
-    pub model: Option<String>,
-    /// Scans.
-    pub scans: usize,
-    /// The maps made at the true poses.
-    pub true_poses: Vec<ExperimentF1>,
-    /// One run per seed.
-    pub runs: Vec<OdometryRun>,
-}
-
-/// Runs the odometry evaluation of `eval-log` (`args.odometry` is active).
-pub fn run(
-    args: &EvalLogArgs,
-    logs: &[PathBuf],
-    methods: &[LogMethod],
-    cfg: &MethodsConfig,
-    experiments: &[u8],
-) -> anyhow::Result<()> {
+/// Runs `eval-log` with `--odometry-drift` or `--truth-poses` (`args.odometry` is active).
+pub fn run(args: &EvalLogArgs) -> anyhow::Result<()> {
+    let logs = collect_logs(&args.log)?;
+    let methods = parse_methods(&args.methods)?;
+    let experiments: Vec<u8> = match args.experiment {
+        Some(e) => vec![e],
+        None => vec![1, 2, 3],
+    };
+    let cfg = MethodsConfig::new(&args.map)?;
+    ensure!(
+        args.odometry.is_active(),
+        "give --odometry-drift SEEDS or --truth-poses FILE"
+    );
     let o = &args.odometry;
     let model = o.model()?;
     ensure!(
@@ -180,7 +61,7 @@ pub fn run(
         logs.len()
     );
     let mut reports = Vec::new();
-    for log in logs {
+    for log in &logs {
         let dir = if logs.len() == 1 {
             args.out.clone()
         } else {
@@ -188,7 +69,7 @@ pub fn run(
         };
         std::fs::create_dir_all(&dir)
             .with_context(|| format!("{}: cannot create output directory", dir.display()))?;
-        let r = eval_log_odometry(log, args, model, methods, cfg, experiments)
+        let r = eval_log_odometry(log, args, model, &methods, &cfg, &experiments)
             .with_context(|| format!("evaluating {}", log.display()))?;
         let json = serde_json::to_string_pretty(&r)?;
         std::fs::write(dir.join("report.json"), json + "\n")
@@ -196,7 +77,7 @@ pub fn run(
         eprintln!("wrote {}", dir.join("report.json").display());
         reports.push(r);
     }
-    let table = crate::eval::odometry_table::tables(&reports);
+    let table = crate::eval::odometry_report::tables(&reports);
     println!("\n{table}");
     if logs.len() > 1 {
         std::fs::write(args.out.join("summary.md"), &table)

@@ -9,8 +9,9 @@
 //!   estimated from a log), [`perturb`] (a log made noisier or sparser, seeded), [`progress`],
 //!   [`pose_error`] (relative pose error of a trajectory);
 //! * wheel odometry and scan matching on logs — [`eval_odometry`] (`eval-log --odometry-drift`,
-//!   `--truth-poses`) and its [`odometry_table`]; [`log_maps`] holds the benchmark and
-//!   experiment maps every eval-log variant shares.
+//!   `--truth-poses`), its [`odometry_args`] and [`odometry_report`]; [`log_setup`] (a log's grid, mapper,
+//!   experiments and traditional map) and [`log_maps`] (the benchmark and the methods' maps)
+//!   are what every eval-log variant and `export` share.
 //!
 //! Built on the simulator ([`crate::sim`]); nothing here depends on the firmware developer's
 //! [`crate::firmware`].
@@ -22,9 +23,11 @@ pub mod eval_log;
 pub mod eval_odometry;
 pub mod eval_sim;
 pub mod log_maps;
+pub mod log_setup;
 pub mod metrics;
 pub mod noise;
-pub mod odometry_table;
+pub mod odometry_args;
+pub mod odometry_report;
 pub mod perturb;
 pub mod pose_error;
 pub mod prior;

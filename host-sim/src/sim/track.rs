@@ -20,6 +20,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::sim::explore::ScanRecord;
 
+/// Margin (m) of the robot's map around the odometry's extent: room for the matched poses.
+pub const TRACK_MARGIN_M: f64 = 10.0;
+
 /// Points per scan the tracker keeps: the robot's buffer (an LD06 turn is ~450 points).
 pub const TRACK_POINTS: usize = 512;
 

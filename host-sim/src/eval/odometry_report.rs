@@ -1,8 +1,79 @@
-//! The Markdown tables of `eval-log --odometry-drift` / `--truth-poses`
-//! ([`crate::eval::eval_odometry`]): pose error per run, max F1 per map, the worst ratios.
+//! What `eval-log --odometry-drift` / `--truth-poses` ([`crate::eval::eval_odometry`]) reports:
+//! `report.json`'s types and the Markdown tables (pose error per run, max F1 per map, the worst
+//! ratios).
 
-use crate::eval::eval_odometry::{ExperimentF1, OdometryReport, OdometryRun};
-use crate::eval::pose_error::{Rpe, RPE_DELTAS};
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use crate::eval::pose_error::{ratio, Rpe, RPE_DELTAS};
+use crate::sim::track::VerdictCounts;
+
+/// Max F1 of each map of one experiment.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ExperimentF1 {
+    /// 1, 2 or 3.
+    pub experiment: u8,
+    /// Max F1 near the experiment's mapped cells (eval-log's figure), per method.
+    pub near_mapped: BTreeMap<String, f64>,
+    /// Max F1 over all cells the benchmark knows, per method.
+    pub all: BTreeMap<String, f64>,
+}
+
+/// One trajectory's figures.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PosesResult {
+    /// Relative pose error against the truth at 1, 10 and 100 scans.
+    pub rpe: Vec<Rpe>,
+    /// Absolute position error against the truth, m: mean and largest.
+    pub position_error_m: (f64, f64),
+    /// The maps made at these poses.
+    pub maps: Vec<ExperimentF1>,
+}
+
+/// One odometry run (one seed, or the given log's odometry).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OdometryRun {
+    /// The drift seed (`None`: `--truth-poses`).
+    pub seed: Option<u64>,
+    /// The odometry.
+    pub odometry: PosesResult,
+    /// The matched poses (`None` with `--no-match`).
+    pub matched: Option<PosesResult>,
+    /// How the matches went.
+    pub verdicts: Option<VerdictCounts>,
+}
+
+impl OdometryRun {
+    /// matched / odometry relative pose error at index `k` of [`crate::eval::pose_error::RPE_DELTAS`]:
+    /// (translation, rotation); NaN without matching.
+    pub fn ratios(&self, k: usize) -> (f64, f64) {
+        let (Some(m), Some(o)) = (
+            self.matched.as_ref().and_then(|m| m.rpe.get(k)),
+            self.odometry.rpe.get(k),
+        ) else {
+            return (f64::NAN, f64::NAN);
+        };
+        (ratio(m.trans_m, o.trans_m), ratio(m.rot_deg, o.rot_deg))
+    }
+}
+
+/// `DIR/report.json` of one log.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OdometryReport {
+    /// Log name.
+    pub log: String,
+    /// Where the truth came from: `the log's poses` or the `--truth-poses` file.
+    pub truth: String,
+    /// `--odometry-model` (with `--odometry-drift`).
+    pub model: Option<String>,
+    /// Scans.
+    pub scans: usize,
+    /// The maps made at the true poses.
+    pub true_poses: Vec<ExperimentF1>,
+    /// One run per seed.
+    pub runs: Vec<OdometryRun>,
+}
 
 fn rpe_cell(r: Option<&Rpe>) -> String {
     r.map_or("—".into(), |r| {
