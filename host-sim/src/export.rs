@@ -10,7 +10,10 @@
 //! Sources (exactly one):
 //! * `--log FILE [--experiment 0..3] [--method NAME]`: maps a CARMEN log like `eval-log` and
 //!   exports the `benchmark` (its trinary ground truth, exactly), `traditional` or any sampler's
-//!   or baseline's map; experiment 0 is all of the log's data.
+//!   or baseline's map; experiment 0 is all of the log's data. With `--match` the log's poses are
+//!   wheel odometry: the robot's scan matcher corrects them ([`crate::sim::track`]) before the
+//!   log is mapped, and the matched trajectory goes to `<out>.poses.csv` (`map.yaml` →
+//!   `map.poses.csv`: `scan,x_m,y_m,theta_rad`, one row per scan, in the log's frame).
 //! * `--probability-png FILE`: a probability image the tools write (`demo`'s
 //!   `*_probability.png`, `eval-log`'s `expN_<method>.png`; grey = 255·(1 − p)), or one panel of a
 //!   side-by-side strip (`eval-sim`'s per-map PNG, `comparison.png`) with `--panel I --panels N`.
@@ -35,12 +38,16 @@ use ogm_field::export::{export_world, world_from_stream};
 use ogm_field::world::load::{DEFAULT_FREE_THRESH, DEFAULT_OCCUPIED_THRESH};
 use ogm_field::world::{load_world, probabilities_to_world, World};
 
+use ogm_core::localize::odometry::PoseF;
+use ogm_core::Pose;
+
 use crate::eval::eval_log::{
-    benchmark_truth, map_scans, parse_methods, run_log_method, setup_log, Experiment, LogMapArgs,
-    MethodsConfig, BENCHMARK_THRESHOLD,
+    benchmark_truth, log_geometry, map_scans, parse_methods, run_log_method, setup_log, Experiment,
+    LogMapArgs, LogSetup, MethodsConfig, BENCHMARK_THRESHOLD, MARGIN_M,
 };
 use crate::eval::render::SIDE_BY_SIDE_GAP_PX;
 use crate::sim::probabilities;
+use crate::sim::track::{track, with_poses, TrackSettings, TRACK_MARGIN_M};
 
 /// `host-sim export` options.
 #[derive(clap::Args, Clone, Debug)]
@@ -63,6 +70,11 @@ pub struct ExportArgs {
     /// With --log: `benchmark`, `traditional`, or a sampler or baseline name.
     #[arg(long, default_value = "traditional")]
     pub method: String,
+    /// With --log: take the log's poses as wheel odometry and correct them with the robot's scan
+    /// matcher before mapping (issue 39); the matched trajectory is written beside the map as
+    /// `<out>.poses.csv` (`scan,x_m,y_m,theta_rad`, one row per scan, the log's frame).
+    #[arg(long = "match", requires = "log")]
+    pub match_poses: bool,
     /// With --log: grid, range and method settings.
     #[command(flatten)]
     pub map: LogMapArgs,
@@ -144,6 +156,10 @@ fn parse_origin(s: &str) -> anyhow::Result<(f64, f64)> {
 /// Runs `host-sim export`.
 pub fn run(a: &ExportArgs) -> anyhow::Result<()> {
     ensure!(
+        !a.match_poses || a.log.is_some(),
+        "--match corrects a log's poses: give --log FILE"
+    );
+    ensure!(
         (0.0..=1.0).contains(&a.free_thresh)
             && (0.0..=1.0).contains(&a.occupied_thresh)
             && a.free_thresh < a.occupied_thresh,
@@ -193,8 +209,59 @@ pub fn run(a: &ExportArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Tracks `setup`'s poses as odometry ([`crate::sim::track`]); the setup at the matched poses
+/// (its grid over them) and the matched poses.
+fn matched_setup(setup: LogSetup) -> anyhow::Result<(LogSetup, Vec<Pose>)> {
+    let cell_m = f64::from(setup.geometry.cell_mm()) / 1000.0;
+    let range = setup.mapper.max_range_mm;
+    let robot_map = log_geometry(&setup.scans, cell_m, range, TRACK_MARGIN_M)?;
+    let t = track(&setup.scans, robot_map, range, &TrackSettings::default())?;
+    println!(
+        "{}: {} scans matched: {} used, verdicts {} (trusted/ambiguous/rotation/unconstrained/few/no overlap/window/contradicted)",
+        setup.name,
+        setup.scans.len(),
+        t.verdicts.usable(),
+        t.verdicts.short()
+    );
+    let scans = with_poses(&setup.scans, &t.poses)?;
+    let geometry = log_geometry(&scans, cell_m, range, MARGIN_M)?;
+    Ok((
+        LogSetup {
+            scans,
+            geometry,
+            ..setup
+        },
+        t.poses,
+    ))
+}
+
+/// Writes `poses` as `scan,x_m,y_m,theta_rad`.
+pub fn write_poses_csv(path: &Path, poses: &[Pose]) -> anyhow::Result<()> {
+    let mut s = String::from("scan,x_m,y_m,theta_rad\n");
+    for (i, p) in poses.iter().enumerate() {
+        let th = PoseF::of(p).th;
+        s.push_str(&format!(
+            "{i},{:.3},{:.3},{th:.6}\n",
+            f64::from(p.x_mm) / 1000.0,
+            f64::from(p.y_mm) / 1000.0
+        ));
+    }
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create directory", dir.display()))?;
+    }
+    std::fs::write(path, s).with_context(|| format!("writing {}", path.display()))
+}
+
 fn world_from_log(log: &Path, a: &ExportArgs) -> anyhow::Result<World> {
-    let setup = setup_log(log, &a.map)?;
+    let mut setup = setup_log(log, &a.map)?;
+    if a.match_poses {
+        let (matched, poses) = matched_setup(setup)?;
+        let csv = a.out.with_extension("poses.csv");
+        write_poses_csv(&csv, &poses)?;
+        println!("wrote {}", csv.display());
+        setup = matched;
+    }
     let g = setup.geometry;
     let (w, h) = (usize::from(g.width()), usize::from(g.height()));
     let res = f64::from(g.cell_mm()) / 1000.0;

@@ -228,6 +228,9 @@ fn main() -> ExitCode {
                 host_sim::eval::prior::train_prior_cmd(&corpus, &core_out, &l25_out, threads, check)
             }
         }
+        Commands::EvalLog(args) if args.odometry.is_active() => {
+            host_sim::eval::eval_odometry::run(&args)
+        }
         Commands::EvalLog(args) => host_sim::eval::eval_log::run(&args),
         Commands::Export(args) => host_sim::export::run(&args),
         Commands::ExactOneD { out, seed } => host_sim::eval::baselines::fig2::run(&out, seed),

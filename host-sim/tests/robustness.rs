@@ -60,6 +60,7 @@ fn robot_mode_holds_on_a_perturbed_shared_log() {
             thin: 1,
             perturb_seed: 7,
         },
+        odometry: Default::default(),
     };
     run(&args).unwrap();
     let report: serde_json::Value =

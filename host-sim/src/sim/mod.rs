@@ -2,7 +2,7 @@
 //! world ([`generate`] builds them; the type is `ogm_field::world::World`), a robot exploring it
 //! ([`mod@explore`]), the synthetic lidar ([`lidar`]), and the online fixed-point mapper
 //! ([`insert_scan`]); and real recorded scans, CARMEN logs ([`carmen`]), in the same form
-//! ([`explore::ScanRecord`]). The firmware maps the same scans through its own lidar parser:
+//! ([`explore::ScanRecord`]); [`track`] tracks a run's odometry with the robot's scan matcher. The firmware maps the same scans through its own lidar parser:
 //! `host-sim firmware` sends them as LD06 packets with pose frames (see
 //! `ogm_core::lidar::source` for why that byte stream is the one seam).
 
@@ -11,6 +11,7 @@ pub mod carmen;
 pub mod explore;
 pub mod generate;
 pub mod lidar;
+pub mod track;
 
 use anyhow::{anyhow, ensure, Context};
 use ogm_core::map::mapper::marks_len;
