@@ -13,9 +13,11 @@
 //!   ([`Older`]) until the next `Window`, whose `tiles_restored` counter says how many stored
 //!   tiles the robot restored meanwhile: none → merged; as many as were sent back (a host that
 //!   sends every entered tile: as many as entered) → replaced; any other number (some refused,
-//!   which the counters do not name) → replaced, and counted as unsure
-//!   ([`Revisits::unsure`]): that loses the older visit's evidence, it never counts it twice.
-//!   Until then a tile the host says it sent back renders as replaced, another as merged.
+//!   which the counters do not name; counted in [`Revisits::unsure`]) → each tile by its data:
+//!   a restored tile keeps every cell the older visits knew, so a cell known before but
+//!   unknown in this visit's tile means the robot started from unknown (merged), none means
+//!   replaced. Until then a tile the host says it sent back renders as replaced, another as
+//!   merged.
 //!
 //! The decision needs only the stream (the counters and the order of tiles), so `listen`,
 //! `export --stream` and `host-sim firmware --log` stitch the same building from the same bytes.
@@ -32,6 +34,10 @@ pub(crate) struct Older {
     layers: [Option<Vec<u8>>; 3],
     /// Whether the robot holds them (sent back): this visit's tiles then replace them.
     sent: bool,
+    /// The counters could not tell (some of a batch refused): decided by this visit's
+    /// log-odds tile, once it arrives — a cell unknown there but known before means the robot
+    /// started from unknown (refused: merge); none means it holds the older evidence.
+    by_data: bool,
 }
 
 /// What the revisits did, and the tiles that entered at the last `Window`.
@@ -49,7 +55,7 @@ pub struct Revisits {
     pub restored: u64,
     /// Of those, the robot did not restore (its tiles are merged with the stored ones).
     pub merged: u64,
-    /// Of those, the counters could not tell (treated as restored).
+    /// Of those, the counters could not tell (decided by each tile's data).
     pub unsure: u64,
 }
 
@@ -65,7 +71,18 @@ pub(super) fn merge(s: &Stored) -> Stored {
     };
     let [lo, counts, sample] = &s.layers;
     let [old_lo, old_counts, old_sample] = &older.layers;
-    let layers = if older.sent {
+    let sent = if older.by_data {
+        match (lo, old_lo) {
+            (Some(n), Some(o)) => !n
+                .chunks_exact(2)
+                .zip(o.chunks_exact(2))
+                .any(|(n, o)| n == [0, 0] && o != [0, 0]),
+            _ => true,
+        }
+    } else {
+        older.sent
+    };
+    let layers = if sent {
         [
             lo.clone().or_else(|| old_lo.clone()),
             counts.clone().or_else(|| old_counts.clone()),
@@ -182,6 +199,7 @@ impl BuildingMap {
             s.older = Some(Older {
                 layers: one.layers,
                 sent: false,
+                by_data: false,
             });
             s.layers = [None, None, None];
         }
@@ -261,7 +279,11 @@ impl BuildingMap {
             let Some(s) = self.tiles.get_mut(k) else {
                 continue;
             };
-            if restored {
+            if unsure {
+                if let Some(o) = &mut s.older {
+                    o.by_data = true;
+                }
+            } else if restored {
                 // The robot holds the older visits: its tiles replace them.
                 if let Some(o) = &mut s.older {
                     o.sent = true;
@@ -391,18 +413,25 @@ mod tests {
             b.note_window(window(8, restored));
             assert_eq!(at(&b, 0).0, want, "restored {restored}");
         }
-        // Two tiles entered, one restored: unsure, treated as restored (never counted twice).
+        // Two tiles entered, one restored: unsure; each decided by its data. Tile (0, 0) holds
+        // every cell known before (restored: replaced), tile (1, 0) only what this visit saw
+        // (refused: merged).
         let mut b = BuildingMap::new(8, 8, 4);
-        for ty in 0..2 {
-            b.apply(&tile(Layer::LogOdds, 0, ty, 100)).unwrap();
-            b.apply(&tile(Layer::Counts, 0, ty, 50)).unwrap();
+        for tx in 0..2 {
+            b.apply(&tile(Layer::LogOdds, tx, 0, 100)).unwrap();
+            b.apply(&tile(Layer::Counts, tx, 0, 50)).unwrap();
         }
         b.note_window(window(8, 0));
         b.note_window(window(0, 0));
         assert_eq!(b.entered().len(), 2);
         b.apply(&tile(Layer::LogOdds, 0, 0, 130)).unwrap();
+        let mut fresh = tile(Layer::LogOdds, 1, 0, 0);
+        fresh.data[..2].copy_from_slice(&30i16.to_le_bytes());
+        b.apply(&fresh).unwrap();
         b.note_window(window(8, 1));
         assert_eq!(b.revisits().unsure, 2);
+        assert_eq!((at(&b, 0).0, at(&b, 1).0), (130, 130));
+        assert_eq!((at(&b, 4).0, at(&b, 5).0), (130, 100));
         assert_eq!(at(&b, 0).0, 130);
     }
 }
