@@ -8,7 +8,7 @@
 //! scans, cell for cell.
 //!
 //! Needs the firmware toolchain and QEMU, like `firmware_qemu.rs` (skipped without them
-//! unless `OGM_REQUIRE_FIRMWARE=1`). Runtime: a few seconds after the firmware build.
+//! unless `OGM_REQUIRE_FIRMWARE=1`). Runtime: about 35 s of QEMU after the firmware build.
 
 use std::time::Duration;
 
