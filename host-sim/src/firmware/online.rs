@@ -366,3 +366,111 @@ pub(super) fn run_input_online(
         sent,
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    use ogm_core::config::Budget;
+    use ogm_core::session::{Owned, Session, Sizes};
+    use ogm_field::stream::{BuildingMap, DeviceEvent, StreamDecoder};
+
+    use super::super::log::{firmware_scan, log_config, log_input, mount_heading};
+    use super::*;
+    use crate::sim::boxes;
+
+    /// The robot loop (lidar on its own UART, poses on the link) paced on the host with an
+    /// online host: a path east and back west through a 30 m building, so the west region
+    /// leaves the window and comes back. The replay of the link as sent, stitched, equals an
+    /// unbounded map of the same scans; without tiles sent back it does not.
+    #[test]
+    fn the_paced_robot_loop_gets_its_tiles_back_before_it_maps_there() {
+        let scans = boxes::scans(
+            &boxes::building(14_000.0, 30, false),
+            &[(6.4, 6.4), (24.0, 7.0), (5.0, 7.4)],
+            0.3,
+            3000,
+        );
+        let base = RunConfig::ROBOT
+            .with_max_range_mm(3000)
+            .with_window_margin_cells(112)
+            .with_budget(Budget::Fixed { updates: 20 });
+        let config = log_config(base, mount_heading(&scans));
+        let (input, _) = log_input(&scans, &config).unwrap();
+        let steps = robot_steps(&input);
+        let link = [&input.link[..], &input.finish[..]].concat();
+        let mut differ_by_mode = Vec::new();
+        for restore in [true, false] {
+            let mut host = OnlineHost::new(restore);
+            let sent = host_link(&link, &input.lidar, &steps, &mut host, 20);
+            assert_eq!(
+                sent.len() > link.len(),
+                restore,
+                "answers only with restore"
+            );
+            let stream = replay::<u8, _>(
+                &sent,
+                &input.lidar,
+                FIRMWARE_SIZES,
+                |_| Some(20),
+                |_, _| {},
+                |_, out| out.to_vec(),
+            )
+            .unwrap();
+            let events: Vec<DeviceEvent> = StreamDecoder::new()
+                .push(&stream)
+                .into_iter()
+                .collect::<Result<_, _>>()
+                .unwrap();
+            let mut b = BuildingMap::new(256, 256, 16);
+            let mut last = None;
+            for e in &events {
+                match e {
+                    DeviceEvent::Window(w) => {
+                        b.note_window(*w);
+                        last = Some(*w);
+                    }
+                    DeviceEvent::Tile(t) => b.apply(t).unwrap(),
+                    _ => {}
+                }
+            }
+            let w = last.expect("a final Window");
+            assert!(w.shifts >= 4, "{w:?}");
+            assert_eq!((w.restore_refused, w.beams_clipped), (0, 0), "{w:?}");
+            if restore {
+                assert!(w.tiles_restored > 10, "{w:?}");
+                assert_eq!(host.parts_sent, 12 * u64::from(w.tiles_restored));
+            } else {
+                assert_eq!(w.tiles_restored, 0);
+            }
+            // The unbounded map of the same scans, as the firmware's turns hold them.
+            let (x0, y0, gw, gh) = (-128i32, -128i32, 896u16, 544u16);
+            let mut s = Session::new(
+                config
+                    .with_window_margin_cells(0)
+                    .with_origin_mm(x0 * 50, y0 * 50),
+                Owned::<u8>::buffers(&Sizes::grid(gw, gh)),
+            )
+            .unwrap();
+            for scan in &scans {
+                let (pose, beams) = firmware_scan(scan, config.mount.heading);
+                s.insert(&pose, &beams).unwrap();
+            }
+            let r = b.render();
+            let (rw, rh) = (r.map.width as i64, r.map.height as i64);
+            let mut differ = 0;
+            for (i, l) in s.log_odds().iter().enumerate() {
+                let bx = i64::from(x0) + (i % usize::from(gw)) as i64 - r.x0;
+                let by = i64::from(y0) + (i / usize::from(gw)) as i64 - r.y0;
+                let got = if (0..rw).contains(&bx) && (0..rh).contains(&by) {
+                    r.map.log_odds[(by * rw + bx) as usize]
+                } else {
+                    0
+                };
+                differ += usize::from(got != l.0);
+            }
+            differ_by_mode.push(differ);
+        }
+        // Tiles sent back: exact. Without: the host's merge, off only where a clamp was hit.
+        assert_eq!(differ_by_mode[0], 0);
+        assert!((1..200).contains(&differ_by_mode[1]), "{differ_by_mode:?}");
+    }
+}
