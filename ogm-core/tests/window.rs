@@ -491,3 +491,43 @@ fn restore_parts_are_checked_and_every_refusal_is_counted() {
     expect(&w, r.map(|_| ()), RestoreError::Mapped);
     assert_eq!(w.window().tiles_restored, 2);
 }
+
+#[test]
+fn the_tile_restored_last_is_restored_again_after_it_left_and_came_back() {
+    let cfg = config().with_window_margin_cells(MARGIN);
+    let mut w = Session::new(cfg, Owned::<u8>::buffers(&Sizes::grid(WIN, WIN))).unwrap();
+    let mut asm = TileRestore::new();
+    let mut lo = vec![0u8; 512];
+    lo[0] = 7;
+    let est = vec![200u8; 256];
+    assert_eq!(
+        restore_by_parts(&mut w, &mut asm, 7, 7, &lo, &est),
+        Ok(true)
+    );
+    // Away east until tile (7, 7) has left the window, then back west.
+    let mut moves = 0;
+    for x in (0..40)
+        .map(|k| 3200 + k * 1000)
+        .chain((0..40).rev().map(|k| 3200 + k * 1000))
+    {
+        if let Some(shift) = w.check_shift(&Pose::new(x, 3200, Angle::ZERO), EDGE) {
+            w.apply_shift(&shift).unwrap();
+            moves += 1;
+        }
+    }
+    let (ox, oy) = (w.window().origin_x, w.window().origin_y);
+    assert!(
+        moves >= 2 && w.tile_in_window(7, 7, EDGE),
+        "{:?}",
+        w.window()
+    );
+    let i = (7 * 16 - oy) as usize * usize::from(WIN) + (7 * 16 - ox) as usize;
+    assert_eq!(w.log_odds()[i].raw(), 0, "it came back unknown");
+    // Its parts first again: not a repeat, the tile is restored.
+    assert_eq!(
+        restore_by_parts(&mut w, &mut asm, 7, 7, &lo, &est),
+        Ok(true)
+    );
+    assert_eq!(w.log_odds()[i].raw(), 7);
+    assert_eq!(w.window().tiles_restored, 2);
+}

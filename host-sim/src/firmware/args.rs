@@ -118,6 +118,15 @@ pub struct FirmwareArgs {
     /// the grid less a tile, 112 on the QEMU board); 0: a fixed grid around the start.
     #[arg(long, default_value_t = 0)]
     pub window_margin: u16,
+    /// With `--log` and `--window-margin`: the host does not send stored tiles back (a region
+    /// visited again starts unknown on the robot; the host merges the visits' log-odds).
+    #[arg(long)]
+    pub no_restore: bool,
+    /// With `--log`: map only up to this range, mm (0: the log's own). The window's map equals
+    /// an unbounded one only while the margin is at least the mapper's reach
+    /// (`Session::window_reach_cells`: the range and the face band, in cells, plus one).
+    #[arg(long, default_value_t = 0)]
+    pub range_cap: u32,
     /// Only decode a captured map stream (e.g. firmware/target/qemu/uart1.out) and summarise it.
     #[arg(long)]
     pub decode: Option<PathBuf>,
@@ -160,6 +169,8 @@ impl Default for FirmwareArgs {
             log: None,
             experiment: 1,
             window_margin: 0,
+            no_restore: false,
+            range_cap: 0,
         }
     }
 }

@@ -174,6 +174,21 @@ pub fn log_input(
     ))
 }
 
+/// The beams of `scan` as the firmware's turn holds them, and the sensor's pose: relative to
+/// the lidar mounted at `mount`, clockwise, with the padding (dropped by the mapper): what an
+/// unbounded host map of the same scans inserts.
+pub fn firmware_scan(scan: &ScanRecord, mount: Angle) -> (Pose, Vec<ogm_core::Beam>) {
+    let beams = turn_packets(scan, mount, &mut LogEncoding::default())
+        .iter()
+        .flat_map(|p| (0..POINTS).filter_map(|i| p.beam(i)))
+        .collect();
+    let sensor = Pose {
+        heading: scan.pose.heading.wrapping_add(mount),
+        ..scan.pose
+    };
+    (sensor, beams)
+}
+
 /// One scan as LD06 packets (timestamps left at 0), counting into `enc`.
 fn turn_packets(scan: &ScanRecord, mount: Angle, enc: &mut LogEncoding) -> Vec<Packet> {
     // (LD06 angle, distance, the angle the beam must arrive at) clockwise.

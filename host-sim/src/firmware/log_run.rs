@@ -29,7 +29,8 @@ use serde::Serialize;
 
 use super::args::FirmwareArgs;
 use super::groups::{decode_captured, Groups};
-use super::log::{log_config, log_input, mount_heading, LogEncoding};
+use super::log::{firmware_scan, log_config, log_input, mount_heading, LogEncoding};
+use super::online::run_input_online;
 use super::replay::FIRMWARE_SIZES;
 use super::report::FirmwareReport;
 use super::run::run_input;
@@ -63,6 +64,16 @@ pub struct LogRunReport {
     pub stitched: (usize, usize),
     /// The robot's last `Window` report (with `--window-margin`).
     pub window: Option<ogm_core::wire::WindowReport>,
+    /// Whether the host sent stored tiles back (with `--window-margin`, unless `--no-restore`).
+    pub restore: bool,
+    /// The mapper's reach in cells (`Session::window_reach_cells`): the margin the window needs
+    /// to equal an unbounded map.
+    pub reach_cells: u32,
+    /// Regions the robot came back to, as the stitching saw them.
+    pub revisits: ogm_field::stream::Revisits,
+    /// The stitched log-odds against an unbounded host map of the same scans (with a window):
+    /// cells that differ, and cells the unbounded map knows.
+    pub unbounded: Option<(usize, usize)>,
     /// Share of the benchmark's mapped cells that the robot's grid covers.
     pub coverage: f64,
     /// F1 near mapped (`eval-log`'s protocol) of the robot's log-odds map (`traditional`) and
@@ -124,7 +135,10 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
     };
     let base = robot
         .with_origin_mm(ox, oy)
-        .with_max_range_mm(setup.mapper.max_range_mm)
+        .with_max_range_mm(match args.range_cap {
+            0 => setup.mapper.max_range_mm,
+            cap => setup.mapper.max_range_mm.min(cap),
+        })
         .with_seed(args.seed)
         .with_budget(budget);
     let config = log_config(
@@ -147,10 +161,15 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         encoding.clipped_ranges,
         sensor
     );
-    let (firmware, stream) = run_input(args, &config, &input)?;
+    let restore = args.window_margin > 0 && !args.no_restore;
+    let (firmware, stream, link) = if args.window_margin > 0 {
+        run_input_online(args, &config, &input, restore)?
+    } else {
+        let (f, s) = run_input(args, &config, &input)?;
+        (f, s, [&input.link[..], &input.finish[..]].concat())
+    };
     std::fs::create_dir_all(out)
         .with_context(|| format!("{}: cannot create output directory", out.display()))?;
-    let link: Vec<u8> = [&input.link[..], &input.finish[..]].concat();
     std::fs::write(out.join("stream.bin"), &stream)?;
     std::fs::write(out.join("input.bin"), &link)?;
     std::fs::write(out.join("lidar.bin"), &input.lidar)?;
@@ -190,6 +209,12 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         }
     }
     let render = building.render();
+    let reach_cells = ogm_core::Session::new(config, ogm_core::session::Owned::<u8>::buffers(&fw))
+        .map_or(0, |s| s.window_reach_cells());
+    let unbounded = match args.window_margin {
+        0 => None,
+        _ => Some(unbounded_differ(&config, &scans, &render)?),
+    };
     let one = counts_of_one(Some(&config), Some(hello), samples);
     let probs = |layer| stream_probabilities(&render.map, &render.have_counts, one, layer);
     let (w, h) = (render.map.width, render.map.height);
@@ -211,6 +236,10 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         offset_cells: off,
         stitched: (w, h),
         window: building.window().copied(),
+        restore,
+        reach_cells,
+        revisits: building.revisits().clone(),
+        unbounded,
         coverage,
         near_mapped,
         firmware,
@@ -220,6 +249,70 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         serde_json::to_string_pretty(&report)?,
     )?;
     Ok(report)
+}
+
+/// Cells of the stitched log-odds `r` (building cell (0, 0) at `config`'s origin) that differ
+/// from an unbounded host map of the same scans as the firmware read them, and the cells that
+/// map knows. Its grid covers every pose and the range around it.
+fn unbounded_differ(
+    config: &RunConfig,
+    scans: &[crate::sim::explore::ScanRecord],
+    r: &ogm_field::stream::BuildingRender,
+) -> anyhow::Result<(usize, usize)> {
+    let cell = i64::from(config.cell_mm.max(1));
+    let reach = i64::from(config.max_range_mm) / cell + 8;
+    let cells = |v: i32, o: i32| (i64::from(v) - i64::from(o)).div_euclid(cell);
+    let xs = scans.iter().map(|s| cells(s.pose.x_mm, config.origin_x_mm));
+    let ys = scans.iter().map(|s| cells(s.pose.y_mm, config.origin_y_mm));
+    let (x0, x1) = (
+        xs.clone().min().unwrap_or(0) - reach,
+        xs.max().unwrap_or(0) + reach,
+    );
+    let (y0, y1) = (
+        ys.clone().min().unwrap_or(0) - reach,
+        ys.max().unwrap_or(0) + reach,
+    );
+    let (w, h) = (
+        u16::try_from(x1 - x0 + 1).context("the log is too wide for one host grid")?,
+        u16::try_from(y1 - y0 + 1).context("the log is too tall for one host grid")?,
+    );
+    let origin = |o: i32, c: i64| i32::try_from(i64::from(o) + c * cell);
+    let mut host = ogm_core::Session::new(
+        config.with_window_margin_cells(0).with_origin_mm(
+            origin(config.origin_x_mm, x0)?,
+            origin(config.origin_y_mm, y0)?,
+        ),
+        ogm_core::session::Owned::<u8>::buffers(&ogm_core::Sizes::grid(w, h)),
+    )
+    .map_err(|e| anyhow::anyhow!("the unbounded host map: {e:?}"))?;
+    for s in scans {
+        let (pose, beams) = firmware_scan(s, config.mount.heading);
+        host.insert(&pose, &beams)
+            .map_err(|e| anyhow::anyhow!("the unbounded host map: {e:?}"))?;
+    }
+    let (rw, rh) = (r.map.width as i64, r.map.height as i64);
+    let (mut differ, mut known) = (0, 0);
+    for (i, l) in host.log_odds().iter().enumerate() {
+        let (bx, by) = (
+            x0 + (i % usize::from(w)) as i64,
+            y0 + (i / usize::from(w)) as i64,
+        );
+        let (x, y) = (bx - r.x0, by - r.y0);
+        let got = if (0..rw).contains(&x) && (0..rh).contains(&y) {
+            r.map.log_odds[(y * rw + x) as usize]
+        } else {
+            0
+        };
+        known += usize::from(l.0 != 0);
+        differ += usize::from(got != l.0);
+    }
+    // A stitched cell known outside the host's grid differs too.
+    for (i, &l) in r.map.log_odds.iter().enumerate() {
+        let (bx, by) = (r.x0 + i as i64 % rw, r.y0 + i as i64 / rw);
+        let inside = (x0..x0 + i64::from(w)).contains(&bx) && (y0..y0 + i64::from(h)).contains(&by);
+        differ += usize::from(l != 0 && !inside);
+    }
+    Ok((differ, known))
 }
 
 /// F1 near mapped of the robot's maps (`traditional`: its log-odds, `gibbs_l9_border`: its

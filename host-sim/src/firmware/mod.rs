@@ -33,6 +33,7 @@ mod groups;
 pub mod input;
 pub mod log;
 mod log_run;
+pub mod online;
 mod qemu;
 mod replay;
 mod report;

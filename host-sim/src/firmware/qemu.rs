@@ -11,6 +11,8 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, ensure, Context};
 use ogm_field::stream::{DeviceEvent, StreamDecoder};
 
+use super::robot::Line;
+
 /// Boots `elf` in QEMU with UART1 (the link) on a Unix socket, sends `input`, returns the
 /// stream bytes, the exit status, the wall time and what the firmware wrote to the lidar. With
 /// `lidar`, UART0 is a second socket that carries its bytes, written by their own thread at
@@ -22,6 +24,96 @@ pub(super) fn run_qemu(
     timeout: Duration,
     log: Option<&Path>,
 ) -> anyhow::Result<QemuRun> {
+    let (steps, lidar_bytes, answers) = match &lidar {
+        // The robot loop: both lines in their schedule's order, as a robot's run in step;
+        // `Finish` only once the last turn is reported.
+        Some(l) => {
+            let mut steps: Vec<Step> = l
+                .schedule
+                .iter()
+                .map(|(line, r)| Step {
+                    line: *line,
+                    bytes: r.clone(),
+                    after: None,
+                })
+                .collect();
+            steps.push(Step {
+                line: Line::Link,
+                bytes: input.len()..input.len() + l.finish.len(),
+                after: Some(l.last_turn),
+            });
+            (steps, Some(l.bytes), l.answers)
+        }
+        None => (
+            vec![Step {
+                line: Line::Link,
+                bytes: 0..input.len(),
+                after: None,
+            }],
+            None,
+            None,
+        ),
+    };
+    let link: Vec<u8> = match &lidar {
+        Some(l) => [input, l.finish].concat(),
+        None => input.to_vec(),
+    };
+    run_qemu_paced(
+        elf,
+        Paced {
+            link: &link,
+            lidar: lidar_bytes,
+            steps: &steps,
+            answers,
+            host: None,
+        },
+        timeout,
+        log,
+    )
+    .map(|(run, _)| run)
+}
+
+/// One write of a paced run: `bytes` of `line`'s input, written once the firmware has
+/// reported scan or turn `after` (if given) and the host's answers to everything it streamed
+/// up to that report are written to the link.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(super) struct Step {
+    pub(super) line: Line,
+    pub(super) bytes: std::ops::Range<usize>,
+    pub(super) after: Option<u32>,
+}
+
+/// An online host: sees every event the firmware streams, in order; what it returns is sent
+/// down the link at the next step that waits for a report (after the report it was made
+/// before).
+pub(super) type Host<'a> = Box<dyn FnMut(&DeviceEvent) -> Vec<u8> + 'a>;
+
+/// A paced run's input: the link's and the lidar's bytes, the steps that write them, the
+/// request the sensor waits for (an RPLIDAR's `SCAN`), and the online host.
+pub(super) struct Paced<'a> {
+    pub(super) link: &'a [u8],
+    pub(super) lidar: Option<&'a [u8]>,
+    pub(super) steps: &'a [Step],
+    pub(super) answers: Option<[u8; 2]>,
+    pub(super) host: Option<Host<'a>>,
+}
+
+/// [`run_qemu`] in steps (lock-step with the firmware's reports where a step says so), with
+/// an online host answering the stream; also returns what the link carried, in order (the
+/// input and the host's answers).
+///
+/// Why this is deterministic: the host's answers to report `s` are written before the step
+/// that waits for `s`, so they reach the firmware before every byte after that step, whatever
+/// the timing. A step that waits for scan `s` before the bytes that let the firmware map
+/// scan `s + 1` (its `ScanEnd`; a robot's pose after the next turn's first packet, the only
+/// thing that completes a turn) puts every answer to scan `s` before scan `s + 1` is mapped:
+/// the replay of the link as sent sees them at the same place.
+pub(super) fn run_qemu_paced(
+    elf: &Path,
+    input: Paced<'_>,
+    timeout: Duration,
+    log: Option<&Path>,
+) -> anyhow::Result<(QemuRun, Vec<u8>)> {
     let root = repo_root();
     let dir = std::env::temp_dir().join(format!("ogm-fw-{}-{}", std::process::id(), rand_seed()));
     std::fs::create_dir_all(&dir)?;
@@ -30,7 +122,7 @@ pub(super) fn run_qemu(
         UnixListener::bind(&sock).with_context(|| format!("binding {}", sock.display()))?;
     listener.set_nonblocking(true)?;
     let sock0 = dir.join("u0.sock");
-    let listener0 = match &lidar {
+    let listener0 = match &input.lidar {
         Some(_) => Some(
             UnixListener::bind(&sock0).with_context(|| format!("binding {}", sock0.display()))?,
         ),
@@ -42,11 +134,11 @@ pub(super) fn run_qemu(
         .arg(elf)
         .args(["--timeout", &timeout.as_secs().max(1).to_string()])
         .args(["--uart1", "chardev:u1"]);
-    if lidar.is_some() {
+    if input.lidar.is_some() {
         cmd.args(["--uart0", "chardev:u0"]);
     }
     cmd.arg("--");
-    if lidar.is_some() {
+    if input.lidar.is_some() {
         cmd.arg("-chardev")
             .arg(format!("socket,id=u0,path={}", sock0.display()));
     }
@@ -97,140 +189,174 @@ pub(super) fn run_qemu(
         }
         None => None,
     };
-    let mut writer = stream.try_clone()?;
+    let writer = stream.try_clone()?;
     // Send only once the firmware has spoken (its Hello): its UART is initialised by then.
     // Bytes that arrive earlier can meet the init's dummy read of the data register (board
     // `Uart::new`, which QEMU needs to start delivering input) and be lost: seen once in ~20
     // noisy-link runs as a lost first frame delimiter.
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
-    // The robot loop: both lines from this one thread in their schedule's order, as a robot's
-    // run in step; `Finish` only once the last turn is reported (a second go from the reader).
-    // The lidar's socket is handed back, not closed, when its bytes are written: QEMU's socket
-    // chardev drops a connection, and whatever of it is still unread, the moment the peer
-    // hangs up; it stays open until QEMU has exited.
-    let (finish_tx, finish_rx) = std::sync::mpsc::channel::<()>();
-    let last_turn = lidar.as_ref().map(|l| l.last_turn);
-    let data = input.to_vec();
-    let robot = lidar.map(|l| {
-        let bytes = l.bytes.to_vec();
-        let schedule = l.schedule.to_vec();
-        (bytes, schedule, l.finish.to_vec(), l.answers)
-    });
-    type Written = (Option<UnixStream>, Vec<u8>);
-    let writer = std::thread::spawn(move || -> std::io::Result<Written> {
-        let mut heard = Vec::new();
-        if ready_rx.recv().is_err() {
-            return Ok((lidar_stream, heard)); // the firmware never spoke; the reader reports it
-        }
-        match (robot, lidar_stream) {
-            (Some((bytes, schedule, finish, mut answers)), Some(mut w)) => {
-                for (line, r) in schedule {
-                    match line {
-                        super::robot::Line::Link => writer.write_all(&data[r])?,
-                        super::robot::Line::Lidar => {
-                            if let Some(req) = answers.take() {
-                                await_request(&mut w, req, &mut heard)?;
+    // Reports, each with the host's answers to the stream up to it.
+    let (report_tx, report_rx) = std::sync::mpsc::channel::<(u32, Vec<u8>)>();
+    let Paced {
+        link,
+        lidar,
+        steps,
+        answers,
+        mut host,
+    } = input;
+    let pace_wait = timeout + Duration::from_secs(10);
+    let (out, status, written) = std::thread::scope(|scope| -> anyhow::Result<_> {
+        // The lidar's socket is handed back, not closed, when its bytes are written: QEMU's
+        // socket chardev drops a connection, and whatever of it is still unread, the moment
+        // the peer hangs up; it stays open until QEMU has exited.
+        let writer = scope.spawn(move || {
+            let mut w = Writer {
+                link: writer,
+                lidar: lidar_stream,
+                sent: Vec::new(),
+                heard: Vec::new(),
+                answers,
+            };
+            let r = (|| -> std::io::Result<()> {
+                if ready_rx.recv().is_err() {
+                    return Ok(()); // the firmware never spoke; the reader reports it
+                }
+                let mut reported: Option<u32> = None;
+                for step in steps {
+                    if let Some(s) = step.after {
+                        while reported.is_none_or(|r| r < s) {
+                            match report_rx.recv_timeout(pace_wait) {
+                                Ok((seq, bytes)) => {
+                                    w.write_link(&bytes)?;
+                                    reported = Some(reported.map_or(seq, |r| r.max(seq)));
+                                }
+                                // The firmware stopped reporting: the run has failed, and the
+                                // reader's status says why.
+                                Err(_) => return Ok(()),
                             }
-                            w.write_all(&bytes[r])?
+                        }
+                    }
+                    match step.line {
+                        Line::Link => w.write_link(&link[step.bytes.clone()])?,
+                        Line::Lidar => w.write_lidar(&lidar.unwrap_or(&[])[step.bytes.clone()])?,
+                    }
+                }
+                Ok(())
+            })();
+            (r, w)
+        });
+        let mut ready = Some(ready_tx);
+        let mut watch = StreamDecoder::new();
+        let mut answer = Vec::new();
+        let mut reader = stream;
+        reader.set_read_timeout(Some(Duration::from_millis(200)))?;
+        let mut out = Vec::new();
+        let mut buf = [0u8; 16 * 1024];
+        let deadline = t0 + timeout + Duration::from_secs(10);
+        let mut status = None;
+        loop {
+            match reader.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) => {
+                    out.extend_from_slice(&buf[..n]);
+                    if let Some(go) = ready.take() {
+                        let _ = go.send(());
+                    }
+                    for e in watch.push(&buf[..n]).into_iter().flatten() {
+                        if let Some(h) = host.as_mut() {
+                            answer.extend(h(&e));
+                        }
+                        if let DeviceEvent::Scan(r) = e {
+                            let _ = report_tx.send((r.seq, std::mem::take(&mut answer)));
                         }
                     }
                 }
-                if finish_rx.recv().is_ok() {
-                    writer.write_all(&finish)?;
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
+                    if let Some(st) = child.try_wait()? {
+                        status = Some(st);
+                        // Drain what is left.
+                        reader.set_nonblocking(true)?;
+                        while let Ok(n) = reader.read(&mut buf) {
+                            if n == 0 {
+                                break;
+                            }
+                            out.extend_from_slice(&buf[..n]);
+                        }
+                        break;
+                    }
+                    if Instant::now() > deadline {
+                        let _ = child.kill();
+                        break;
+                    }
                 }
-                Ok((Some(w), heard))
-            }
-            (_, w) => {
-                writer.write_all(&data)?;
-                Ok((w, heard))
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => break,
+                Err(e) => return Err(e.into()),
             }
         }
-    });
-    let mut ready = Some(ready_tx);
-    let mut finish_go = Some(finish_tx);
-    let mut watch = StreamDecoder::new();
-    let mut reader = stream;
-    reader.set_read_timeout(Some(Duration::from_millis(200)))?;
-    let mut out = Vec::new();
-    let mut buf = [0u8; 16 * 1024];
-    let deadline = t0 + timeout + Duration::from_secs(10);
-    let mut status = None;
-    loop {
-        match reader.read(&mut buf) {
-            Ok(0) => break,
-            Ok(n) => {
-                out.extend_from_slice(&buf[..n]);
-                if let Some(go) = ready.take() {
-                    let _ = go.send(());
-                }
-                if let Some(last) = last_turn {
-                    let reported = watch
-                        .push(&buf[..n])
-                        .into_iter()
-                        .any(|e| matches!(e, Ok(DeviceEvent::Scan(r)) if r.seq >= last));
-                    if reported {
-                        if let Some(go) = finish_go.take() {
-                            let _ = go.send(());
-                        }
-                    }
-                }
-            }
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                ) =>
-            {
+        if status.is_none() {
+            let wait_until = Instant::now() + Duration::from_secs(15);
+            loop {
                 if let Some(st) = child.try_wait()? {
                     status = Some(st);
-                    // Drain what is left.
-                    reader.set_nonblocking(true)?;
-                    while let Ok(n) = reader.read(&mut buf) {
-                        if n == 0 {
-                            break;
-                        }
-                        out.extend_from_slice(&buf[..n]);
-                    }
                     break;
                 }
-                if Instant::now() > deadline {
+                if Instant::now() > wait_until {
                     let _ = child.kill();
+                    status = child.wait().ok();
                     break;
                 }
+                std::thread::sleep(Duration::from_millis(20));
             }
-            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => break,
-            Err(e) => return Err(e.into()),
         }
-    }
-    if status.is_none() {
-        let wait_until = Instant::now() + Duration::from_secs(15);
-        loop {
-            if let Some(st) = child.try_wait()? {
-                status = Some(st);
-                break;
-            }
-            if Instant::now() > wait_until {
-                let _ = child.kill();
-                status = child.wait().ok();
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
+        drop(ready);
+        drop(report_tx);
+        let written = writer.join().ok().map(|(_, w)| (w.sent, w.heard));
+        Ok((out, status, written))
+    })?;
     let secs = t0.elapsed().as_secs_f64();
-    drop(ready);
-    drop(finish_go);
-    let heard = match writer.join() {
-        Ok(Ok((_, heard))) => heard,
-        _ => Vec::new(),
-    };
+    let (link_sent, heard) = written.unwrap_or_default();
     let _ = std::fs::remove_dir_all(&dir);
-    Ok(QemuRun {
-        stream: out,
-        status,
-        secs,
-        heard,
-    })
+    Ok((
+        QemuRun {
+            stream: out,
+            status,
+            secs,
+            heard,
+        },
+        link_sent,
+    ))
+}
+
+/// The writing end of a paced run: both lines, what the link carried, what the firmware
+/// wrote to the sensor before it answered.
+struct Writer {
+    link: UnixStream,
+    lidar: Option<UnixStream>,
+    sent: Vec<u8>,
+    heard: Vec<u8>,
+    answers: Option<[u8; 2]>,
+}
+
+impl Writer {
+    fn write_link(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        self.sent.extend_from_slice(bytes);
+        self.link.write_all(bytes)
+    }
+
+    fn write_lidar(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        let Some(w) = self.lidar.as_mut() else {
+            return Ok(());
+        };
+        if let Some(req) = self.answers.take() {
+            await_request(w, req, &mut self.heard)?;
+        }
+        w.write_all(bytes)
+    }
 }
 
 /// What [`run_qemu`] returns.

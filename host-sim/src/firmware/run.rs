@@ -413,7 +413,7 @@ pub(super) fn run_input(
 pub const ROBOT_MOUNT_X_MM: i32 = 60;
 
 /// What a `--robot` run's stream says: the turns and how well they were placed.
-fn robot_report(
+pub(super) fn robot_report(
     config: &RunConfig,
     input: &super::robot::RobotInput,
     link: &[u8],

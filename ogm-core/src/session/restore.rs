@@ -177,7 +177,11 @@ impl<S: Storage> Session<S> {
             repeat: false,
             dropped: None,
         };
-        if asm.done == Some((tx, ty)) {
+        // A repeat of the tile just restored is ignored while the tile still holds it; a tile
+        // all unknown again left the window and came back since, and these parts restore it
+        // anew.
+        let cells_known = || self.restore_rect(tx, ty, edge, cells, None).is_none();
+        if asm.done == Some((tx, ty)) && cells_known() {
             step.repeat = true;
             return Ok(step);
         }

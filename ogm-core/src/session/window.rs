@@ -288,7 +288,7 @@ impl<S: Storage> Session<S> {
 
     /// The window's cells of building tile (`tx`, `ty`) if a restore of `cells` log-odds (and
     /// `estimates` bytes) may write them.
-    fn restore_rect(
+    pub(super) fn restore_rect(
         &self,
         tx: i32,
         ty: i32,

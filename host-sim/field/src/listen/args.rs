@@ -55,6 +55,11 @@ pub struct ListenArgs {
     /// the robot's pose at every scan (`ogm_field::live`).
     #[arg(long, num_args = 0..=1, default_missing_value = crate::live::DEFAULT_ADDR)]
     pub live: Option<String>,
+    /// Do not send stored tiles back when the robot's rolling window comes back to them (by
+    /// default the listener sends them, docs/wire.md "Restoring stored tiles"); the robot then
+    /// starts the region from unknown and the map merges the visits.
+    #[arg(long)]
+    pub no_restore: bool,
 }
 
 impl ListenArgs {
@@ -75,6 +80,7 @@ impl ListenArgs {
             print_config: false,
             mcap: None,
             live: None,
+            no_restore: false,
         }
     }
 }

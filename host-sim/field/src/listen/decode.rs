@@ -7,7 +7,7 @@ use ogm_firmware::sizes::MPS2_AN386 as FW;
 
 use super::stats::{Gap, Notice};
 use super::{Listener, MAX_CELLS, MAX_GAPS_KEPT};
-use crate::stream::{BuildingError, BuildingMap, DeviceEvent};
+use crate::stream::{host_frame, BuildingError, BuildingMap, DeviceEvent};
 
 impl Listener {
     /// Feeds bytes from the robot; returns what deserves a line of its own.
@@ -183,6 +183,15 @@ impl Listener {
             DeviceEvent::Window(w) => {
                 if let Some(map) = self.map.as_mut() {
                     map.note_window(w);
+                    // The stored tiles that came back into the window go back to the robot
+                    // before it can map there (docs/wire.md "Restoring stored tiles").
+                    if self.send_back {
+                        let tiles = map.entered().to_vec();
+                        let msgs = map.restore_msgs(&tiles);
+                        self.stats.tiles_sent_back += tiles.len() as u64;
+                        self.outgoing.extend(msgs.iter().map(host_frame));
+                    }
+                    self.stats.revisits = Some(map.revisits().clone());
                 }
                 self.stats.window = Some(w);
             }
@@ -395,5 +404,77 @@ mod tests {
         assert_eq!(r.map.counts[271 * 272], 1);
         assert_eq!(r.map.counts[255 * 272 + 255 + 16], 1);
         assert_eq!((l.stats().tiles, l.stats().bad_tiles), (2, 1));
+    }
+
+    #[test]
+    fn stored_tiles_go_back_when_the_window_returns_unless_told_not_to() {
+        // A 32 × 32 window of 16-cell tiles; tile (0, 0) mapped, then the window moves east
+        // and back.
+        let hello = frame(&DeviceMsg::Hello(Hello {
+            firmware: "test",
+            board: "host",
+            tick_hz: 1000,
+            width: 32,
+            height: 32,
+            tile_edge: 16,
+            max_beams: 456,
+            ray_capacity: 1,
+            scan_capacity: 1,
+            local_capacity: 1,
+            count_max: 255,
+        }));
+        let lo = 300i16.to_le_bytes().repeat(256);
+        let est = vec![40u8; 256];
+        let mut s = hello;
+        for (layer, data) in [(Layer::LogOdds, &lo[..]), (Layer::Counts, &est[..])] {
+            s.extend(frame(&DeviceMsg::Tile(Tile {
+                layer,
+                tx: 0,
+                ty: 0,
+                data,
+            })));
+        }
+        let window = |origin_x| {
+            frame(&DeviceMsg::Window(wire::WindowReport {
+                origin_x,
+                ..wire::WindowReport::default()
+            }))
+        };
+        s.extend(window(32));
+        s.extend(window(0));
+        for send_back in [true, false] {
+            let mut l = Listener::new();
+            l.set_send_back(send_back);
+            l.push(&s);
+            let out = l.take_outgoing();
+            if !send_back {
+                assert!(out.is_empty());
+                continue;
+            }
+            // 8 log-odds and 4 estimate parts, decodable host frames carrying the stored cells.
+            assert_eq!(out.len(), 12);
+            assert_eq!(l.stats().tiles_sent_back, 1);
+            let mut cells = Vec::new();
+            for f in &out {
+                // Between its 0x00 delimiters.
+                let mut f: Vec<u8> = f.iter().copied().filter(|&b| b != 0).collect();
+                match wire::decode::<wire::HostMsg>(&mut f) {
+                    Ok(wire::HostMsg::Restore {
+                        tx: 0,
+                        ty: 0,
+                        layer: Layer::LogOdds,
+                        data,
+                        ..
+                    }) => cells.extend_from_slice(data.as_slice()),
+                    Ok(wire::HostMsg::Restore {
+                        layer: Layer::Counts,
+                        ..
+                    }) => {}
+                    other => panic!("{other:?}"),
+                }
+            }
+            assert_eq!(cells, lo);
+            assert!(l.take_outgoing().is_empty(), "taken once");
+        }
     }
 }

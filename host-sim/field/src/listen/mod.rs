@@ -15,7 +15,9 @@
 //! * saves the map (PNG + ROS map_server PGM/YAML, through the writer `host-sim export` uses)
 //!   every `--save-every` seconds, at the end of the input, and on Ctrl-C; files are written to a
 //!   temporary directory and renamed into place, so a reader never sees half a map;
-//! * sends host messages (settings, scan poses, raw lidar bytes, `Finish`) from a file or stdin;
+//! * sends host messages (settings, scan poses, raw lidar bytes, `Finish`) from a file or stdin,
+//!   and sends stored tiles back when a rolling window comes back to them (`Restore` parts,
+//!   unless `--no-restore`; the map then replaces, else merges, the region's earlier visits);
 //! * survives unplug/replug: on a read error it reopens the device with a back-off and goes on.
 //!
 //! Untrusted bytes from the port go only through [`StreamDecoder`] and [`BuildingMap::apply`]
@@ -96,6 +98,10 @@ pub struct Listener {
     /// The last scan report's number and pose (x, y in m, heading in rad), where its ranges
     /// are placed.
     last_pose: Option<(u32, (f64, f64, f64))>,
+    /// Whether stored tiles go back to the robot when its window returns to them, and the
+    /// frames waiting to be sent ([`Listener::take_outgoing`]).
+    send_back: bool,
+    outgoing: Vec<Vec<u8>>,
 }
 
 impl Default for Listener {
@@ -122,7 +128,20 @@ impl Listener {
             live_dirty: false,
             live_sent: None,
             last_pose: None,
+            send_back: true,
+            outgoing: Vec::new(),
         }
+    }
+
+    /// Whether stored tiles are sent back to the robot (`Restore` parts, when a `Window`
+    /// brings them back into its window); on by default.
+    pub fn set_send_back(&mut self, on: bool) {
+        self.send_back = on;
+    }
+
+    /// The host frames to send the robot now (stored tiles going back), oldest first.
+    pub fn take_outgoing(&mut self) -> Vec<Vec<u8>> {
+        std::mem::take(&mut self.outgoing)
     }
 
     /// A listener that keeps its capture at `path`: unless `fresh`, an existing capture is
@@ -162,6 +181,8 @@ impl Listener {
             .open(path)
             .with_context(|| format!("{}: cannot write the capture", path.display()))?;
         l.capture = Some((path.to_path_buf(), file));
+        // A replayed capture's answers were due to a robot long gone.
+        l.outgoing.clear();
         if resumed {
             l.stats.restarts = previous_restarts(path) + 1;
             l.cut();

@@ -127,6 +127,7 @@ pub fn run(args: &ListenArgs, ctl: Arc<Control>) -> anyhow::Result<ListenStats> 
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create directory", args.out.display()))?;
     let mut l = Listener::with_capture(&capture, args.fresh)?;
+    l.set_send_back(!args.no_restore);
     if let Some(path) = &args.mcap {
         l.record_to(path)?;
     }
@@ -162,7 +163,8 @@ pub fn run(args: &ListenArgs, ctl: Arc<Control>) -> anyhow::Result<ListenStats> 
 
     // The sender thread, with its own handle on the device.
     let (tx, rx) = std::sync::mpsc::channel::<ToSender>();
-    let sending = !matches!(source, SendSource::Nothing) || args.default_config;
+    // Stored tiles go back to the robot through the sender too.
+    let sending = !matches!(source, SendSource::Nothing) || args.default_config || !args.no_restore;
     let mut sender_thread = None;
     if sending {
         let queue: VecDeque<Vec<u8>> = match &source {
@@ -344,6 +346,9 @@ fn read_loop(
                         }
                         _ => {}
                     }
+                }
+                for frame in l.take_outgoing() {
+                    let _ = tx.send(ToSender::Item(frame));
                 }
                 ctl.publish(l);
             }

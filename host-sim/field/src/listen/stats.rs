@@ -48,6 +48,11 @@ pub struct ListenStats {
     pub tiles_refused: u64,
     /// The robot's last rolling-window report (wire v6; none with a fixed grid).
     pub window: Option<ogm_core::wire::WindowReport>,
+    /// Stored tiles sent back to the robot (their `Restore` parts: 12 each at 16-cell tiles),
+    /// as its window came back to them.
+    pub tiles_sent_back: u64,
+    /// Regions the robot came back to: tiles restored, merged, unsure (the map's count).
+    pub revisits: Option<crate::stream::Revisits>,
     /// Scan ranges of the wrong size (dropped).
     pub bad_ranges: u64,
     /// Scans whose ranges were placed at their report's pose (recorded, shown live).

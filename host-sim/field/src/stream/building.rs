@@ -7,11 +7,18 @@
 //! exactly the [`StreamedMap`] the tiles applied in order give. Every tile is untrusted: its
 //! coordinates may be anything, so the bounds are capped ([`MAX_BUILDING_CELLS`],
 //! [`MAX_BUILDING_TILES`]) and a tile beyond them is refused and counted, never allocated.
+//!
+//! A region the robot comes back to (a tile that enters the window again, `Window` reports,
+//! module `visit`): its stored tiles are what a host sends back ([`BuildingMap::note_window`],
+//! [`BuildingMap::restore_msgs`]); if the robot restored them, its next tiles contain the stored
+//! evidence and replace it, else the robot restarted the region from unknown and its tiles are
+//! merged with the stored ones (log-odds added).
 
 use std::collections::BTreeMap;
 
 use ogm_core::wire::{Layer, TileRect, WindowReport};
 
+use super::visit::{merge, Older, Revisits};
 use super::{OwnedTile, StreamedMap};
 
 /// Largest building a stream may grow to, in cells (4096 × 4096: 205 m square at 5 cm).
@@ -66,11 +73,13 @@ impl std::error::Error for BuildingError {}
 
 /// One building tile: its size in cells and the newest data of each layer.
 #[derive(Clone, Debug, PartialEq, Eq)]
-struct Stored {
-    w: usize,
-    h: usize,
-    /// `LogOdds`, `Counts`, `Sample`.
-    layers: [Option<Vec<u8>>; 3],
+pub(super) struct Stored {
+    pub(super) w: usize,
+    pub(super) h: usize,
+    /// `LogOdds`, `Counts`, `Sample`: the robot's newest (of this visit, after a revisit).
+    pub(super) layers: [Option<Vec<u8>>; 3],
+    /// Earlier visits' evidence, when the tile entered the window again (module `visit`).
+    pub(super) older: Option<Older>,
 }
 
 /// Inclusive tile bounds.
@@ -89,7 +98,7 @@ pub struct BuildingMap {
     width: usize,
     height: usize,
     edge: usize,
-    tiles: BTreeMap<(i32, i32), Stored>,
+    pub(super) tiles: BTreeMap<(i32, i32), Stored>,
     /// Tile bounds: the `Hello`'s grid and every stored tile.
     bounds: Bounds,
     /// Distinct tiles stored outside the `Hello`'s grid.
@@ -98,6 +107,8 @@ pub struct BuildingMap {
     bad_size: u64,
     refused: u64,
     window: Option<WindowReport>,
+    /// Revisited regions: the tiles that entered at the last `Window`, and the counts.
+    pub(super) revisits: Revisits,
 }
 
 fn layer_index(layer: Layer) -> usize {
@@ -131,6 +142,7 @@ impl BuildingMap {
             bad_size: 0,
             refused: 0,
             window: None,
+            revisits: Revisits::default(),
         }
     }
 
@@ -164,9 +176,14 @@ impl BuildingMap {
         self.window.as_ref()
     }
 
-    /// Records a `Window` report (the map does not need it: tiles carry building coordinates).
-    pub fn note_window(&mut self, w: WindowReport) {
-        self.window = Some(w);
+    /// The window's size and tile edge (the `Hello`'s grid).
+    pub(super) fn grid(&self) -> (usize, usize, usize) {
+        (self.width, self.height, self.edge)
+    }
+
+    /// The window before `w` (the first window lies at building cell (0, 0)).
+    pub(super) fn set_window(&mut self, w: WindowReport) -> WindowReport {
+        self.window.replace(w).unwrap_or_default()
     }
 
     /// Whether tile (`tx`, `ty`) is one of the `Hello`'s grid.
@@ -250,6 +267,7 @@ impl BuildingMap {
             w,
             h,
             layers: [None, None, None],
+            older: None,
         });
         stored.layers[layer_index(t.layer)] = Some(t.data.clone());
         self.applied += 1;
@@ -266,7 +284,15 @@ impl BuildingMap {
         map.tiles = self.applied;
         let mut have_counts = vec![false; w * h];
         let e = self.edge as i64;
-        for (&(tx, ty), s) in &self.tiles {
+        for (&(tx, ty), stored) in &self.tiles {
+            let merged;
+            let s = match &stored.older {
+                None => stored,
+                Some(_) => {
+                    merged = merge(stored);
+                    &merged
+                }
+            };
             let cx = (i64::from(tx) * e - x0) as usize;
             let cy = (i64::from(ty) * e - y0) as usize;
             let index = |k: usize| (cy + k / s.w) * w + cx + k % s.w;

@@ -11,6 +11,7 @@
 mod building;
 mod event;
 mod map;
+mod visit;
 
 use anyhow::{anyhow, bail, ensure};
 use ogm_core::wire::{self, DeviceMsg, HostMsg, WireError};
@@ -20,6 +21,7 @@ pub use building::{
 };
 pub use event::{DeviceEvent, OwnedHello, OwnedRanges, OwnedTile};
 pub use map::{counts_of_one, stream_probabilities, MapLayer, StreamedMap};
+pub use visit::Revisits;
 
 /// Decodes the robot's map stream: bytes in (any chunking), [`DeviceEvent`]s out. A bad or
 /// oversized frame costs only itself: decoding resumes after the next `0x00`.
