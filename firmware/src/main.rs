@@ -58,7 +58,7 @@ fn main() -> ! {
         let _ = (link, lidar);
         let mut memory = memory;
         let b = &mut memory.buffers;
-        ogm_firmware::bench_match::run(&mut b.grid[..], &mut b.marks[..], b.width, b.height, clock)
+        ogm_firmware::bench_match::run(&mut b.grid[..], b.marks.as_mut(), b.width, b.height, clock)
     };
     #[cfg(not(feature = "bench-match"))]
     let code = ogm_firmware::run(memory, link, lidar, clock);

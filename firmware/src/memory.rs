@@ -3,7 +3,7 @@
 //! in `ogm_firmware::sizes`). The layout and its justification are in
 //! docs/firmware.md ("RAM layout").
 
-use crate::board::{StaticArray, StaticBuf, StaticSlot};
+use crate::board::{SharedMarks, StaticArray, StaticBuf, StaticSlot};
 use ogm_core::lidar::pose_track::Mount;
 use ogm_core::lidar::turn::Turns;
 use ogm_core::map::mapper::marks_len;
@@ -46,7 +46,8 @@ pub const LOCAL_RAYS: usize = if cfg!(feature = "rays") {
 
 /// The log-odds map: 256 × 256 × 2 B = 128 KiB.
 static GRID: StaticBuf<[LogOdds; CELLS]> = StaticBuf::new([LogOdds::ZERO; CELLS]);
-/// The mapper's "touched in this scan" bits: 8 KiB.
+/// The mapper's "touched in this scan" bits: 8 KiB; between scans, the scan matcher's points
+/// (`SharedMarks`).
 static MARKS: StaticBuf<[u32; MARK_WORDS]> = StaticBuf::new([0; MARK_WORDS]);
 /// The sampler's current map sample: 8 KiB.
 static SAMPLE: StaticBuf<[u32; SAMPLE_WORDS]> = StaticBuf::new([0; SAMPLE_WORDS]);
@@ -85,7 +86,7 @@ pub struct Static;
 impl Storage for Static {
     type Count = u8;
     type Grid = &'static mut [LogOdds; CELLS];
-    type Marks = &'static mut [u32; MARK_WORDS];
+    type Marks = SharedMarks<MARK_WORDS>;
     type Scans = &'static mut [StoredScan; SCANS];
     type Rays = &'static mut [StoredRay; RAYS];
     type Sample = &'static mut [u32; SAMPLE_WORDS];
@@ -101,7 +102,7 @@ pub fn take() -> Option<Memory<'static, Static>> {
             width: SZ.width,
             height: SZ.height,
             grid: GRID.take()?,
-            marks: MARKS.take()?,
+            marks: SharedMarks(MARKS.take()?),
             sample: SAMPLE.take()?,
             counts: COUNTS.take()?,
             rays: RAY_BUF.take_filled(StoredRay::default)?,

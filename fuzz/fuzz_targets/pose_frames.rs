@@ -4,7 +4,8 @@
 //! scan buffer holds), raw bytes and flipped bits, through `ogm_core::lidar::link::LinkRx` into the
 //! firmware's engine, `ogm_core::session::Session`: `insert` (mapper, seeding, ray store, cache
 //! refresh), sampler steps, and the box of changed cells the firmware's `mark_dirty` takes
-//! (`Inserted::changed_box`). A 64 × 64 grid and small buffers keep
+//! (`Inserted::changed_box`), with pose correction on or off (the session's scan matcher against
+//! its own map, `Session::correct` before the insert or inside it). A 64 × 64 grid and small buffers keep
 //! an input fast. Invariants: nothing panics; log-odds stay within the clamp; the sampler's
 //! counts never exceed its samples. The same bytes also go through the robot loop's lidar
 //! path (`ogm_core::lidar::ld06::Ld06Parser` → `ogm_core::lidar::turn::Turns`, placed by the `Pose` frames
@@ -14,7 +15,7 @@
 
 use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
-use ogm_core::config::{Budget, LidarModel, PoseInput, RunConfig};
+use ogm_core::config::{Budget, LidarModel, PoseCorrection, PoseInput, RunConfig};
 use ogm_core::config::{DataTerm, Estimator};
 use ogm_core::lidar::ld06::Ld06Parser;
 use ogm_core::lidar::ld06::{Packet, Point, POINTS};
@@ -64,6 +65,8 @@ enum Item {
         rplidar_sample_us: Option<u16>,
         face_band: bool,
         window_margin_cells: u16,
+        /// Pose correction: the session's scan matcher on every scan.
+        correction: bool,
     },
     PaperConfig {
         origin_x_mm: i16,
@@ -186,6 +189,7 @@ fuzz_target!(|items: Vec<Item>| {
                 rplidar_sample_us,
                 face_band,
                 window_margin_cells,
+                correction,
             } => frame(
                 &mut bytes,
                 &HostMsg::Config(RunConfig {
@@ -243,6 +247,11 @@ fuzz_target!(|items: Vec<Item>| {
                     },
                     face_band,
                     window_margin_cells,
+                    correction: if correction {
+                        PoseCorrection::Match
+                    } else {
+                        PoseCorrection::Off
+                    },
                 }),
             ),
             Item::PaperConfig {
@@ -432,7 +441,25 @@ fuzz_target!(|items: Vec<Item>| {
                 return;
             };
             scans += 1;
+            // The correction first, as a rolling window's caller does (every other scan), or
+            // inside the insert: the scan matcher against the session's map, its points in
+            // the mapper's marks.
+            let first = (scans % 2 == 0).then(|| m.correct(&pose, beams));
             let inserted = m.insert(&pose, beams);
+            if let (Some(c), Ok(i)) = (first, &inserted) {
+                assert_eq!(i.correction, c);
+            }
+            if let Ok(i) = &inserted {
+                assert_eq!(i.correction.odometry, pose);
+                if m.config().correction == PoseCorrection::Off {
+                    assert_eq!(i.correction.pose, pose);
+                }
+                if let Some(r) = i.correction.matched {
+                    if !r.verdict.is_usable() {
+                        assert_eq!(i.correction.pose, i.correction.predicted);
+                    }
+                }
+            }
             if let Budget::Fixed { updates } = m.config().budget {
                 m.step(updates.min(256));
             }

@@ -117,7 +117,7 @@ fn build<S: Storage>(
     config: RunConfig,
     bufs: Buffers<S>,
 ) -> Result<&mut Session<S>, ogm_core::session::SessionError> {
-    Ok(slot.insert(Session::new(config, bufs)?))
+    Session::new_in(slot, config, bufs)
 }
 
 /// The settings a robot maps with when no host configures it: [`RunConfig::ROBOT`] (an LD06's

@@ -208,15 +208,20 @@ impl<S: Storage> State<'_, S> {
             self.report_error(link, ErrorCode::ScanOverflow, overflow);
         }
         let t0 = platform.now();
+        // The pose correction first (the map before this scan; `pose` is odometry): a rolling
+        // window follows the corrected pose, and the insert below maps at it.
+        let correction = self.session.as_deref_mut().map(|m| m.correct(pose, beams));
+        let tm = platform.now();
+        let corrected = correction.map_or(*pose, |c| c.pose);
         // A rolling window moves before the scan that needs it is mapped (so that scan's rays
         // stay inside it), its leaving tiles streamed first.
         let shift = self
             .session
             .as_deref_mut()
-            .and_then(|m| m.check_shift(pose, EDGE as u16));
+            .and_then(|m| m.check_shift(&corrected, EDGE as u16));
         if let Some(shift) = shift {
             self.shift_window(link, &shift);
-            let t = ticks(t0, platform.now());
+            let t = ticks(tm, platform.now());
             self.totals.shifts += 1;
             self.totals.max_shift_ticks = self.totals.max_shift_ticks.max(t);
             info!(
@@ -230,12 +235,17 @@ impl<S: Storage> State<'_, S> {
         };
         let mut report = ScanReport {
             seq,
-            pose: *pose,
+            pose: corrected,
+            odometry: *pose,
             beams: beams.len() as u32,
             beams_overflowed: overflow,
             t_us,
+            match_ticks: ticks(t0, tm),
             ..ScanReport::default()
         };
+        if let Some(c) = &correction {
+            report.correction = m.correction_report(c);
+        }
         // Log-odds update, seeding of the cells observed for the first time, ray store and
         // first-occupied refresh in one step.
         let inserted = m.insert(pose, beams);
@@ -245,8 +255,9 @@ impl<S: Storage> State<'_, S> {
             None => run_budget(m, platform, t0),
         };
         let t2 = platform.now();
-        // `store_ticks` stays 0: the ray store and the cache refresh are inside `insert_ticks`.
-        (report.insert_ticks, report.sampler_ticks) = (ticks(t0, t1), ticks(t1, t2));
+        // `store_ticks` stays 0: the ray store and the cache refresh are inside `insert_ticks`
+        // (with a window shift's, as before); the match is `match_ticks`.
+        (report.insert_ticks, report.sampler_ticks) = (ticks(tm, t1), ticks(t1, t2));
         report.sampler_updates = updates;
         match inserted {
             Ok(inserted) => {

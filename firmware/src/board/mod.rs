@@ -193,6 +193,47 @@ impl<T> StaticBuf<T> {
     }
 }
 
+/// The mapper's marks, which also hold the session's scan-matcher points between inserts
+/// (`ogm_core::session::MarkWords`): one `static` of `W` words, seen as `W / 2` points when the
+/// session asks. No RAM of its own for the points (4 KiB that the nRF52840 does not have).
+pub struct SharedMarks<const W: usize>(pub &'static mut [u32; W]);
+
+impl<const W: usize> AsRef<[u32]> for SharedMarks<W> {
+    fn as_ref(&self) -> &[u32] {
+        &self.0[..]
+    }
+}
+
+impl<const W: usize> AsMut<[u32]> for SharedMarks<W> {
+    fn as_mut(&mut self) -> &mut [u32] {
+        &mut self.0[..]
+    }
+}
+
+impl<const W: usize> ogm_core::session::MarkWords for SharedMarks<W> {
+    fn points(&mut self) -> &mut [ogm_core::localize::ScanPoint] {
+        let words: &mut [u32; W] = self.0;
+        // SAFETY: `ScanPoint` is `repr(C)` of two `i32`s: size 8, alignment 4, every bit
+        // pattern valid; `u32` has alignment 4, so the words' start is aligned for it, and
+        // `W / 2` points cover at most the `W` words. The returned slice reborrows `self`
+        // mutably, so the words cannot be used as words while it lives; what is written there
+        // is plain data the mapper reads as words (the session zeroes it again before an
+        // insert).
+        unsafe {
+            core::slice::from_raw_parts_mut(
+                words.as_mut_ptr().cast::<ogm_core::localize::ScanPoint>(),
+                W / 2,
+            )
+        }
+    }
+}
+
+// The cast above relies on this layout.
+const _: () = assert!(
+    core::mem::size_of::<ogm_core::localize::ScanPoint>() == 8
+        && core::mem::align_of::<ogm_core::localize::ScanPoint>() <= 4
+);
+
 /// A `static` slot for a value that has no `const` constructor (the mapping state, built from
 /// the host's settings at run time): uninitialised in `.bss` (no flash, unlike a `StaticBuf`
 /// of `Option<T>`, whose `None` is not all zero bytes and so lands in `.data`), written once.

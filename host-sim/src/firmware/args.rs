@@ -127,6 +127,21 @@ pub struct FirmwareArgs {
     /// (`Session::window_reach_cells`: the range and the face band, in cells, plus one).
     #[arg(long, default_value_t = 0)]
     pub range_cap: u32,
+    /// Drifting wheel odometry on the link instead of the true poses: `MODEL[:SEED]` (SEED
+    /// default: `--seed`). Per step between scans, with d the distance and dθ the turn:
+    /// `issue39` — translation noise σ = 1 % of d per axis, turn noise σ = 2 % of dθ, heading
+    /// bias 0.11°/m; `cheap` (a small uncalibrated robot) — translation noise 2 % of d, turn
+    /// noise 5 % of dθ plus 0.2°/m, heading bias 0.5°/m, turn scale +2 %, distance scale +1 %
+    /// (`ogm_core::localize::odometry::OdometryModel`). The maps are still scored against the
+    /// true world; the report gives the odometry's and the robot's corrected poses' error
+    /// against the truth.
+    #[arg(long, value_parser = super::odometry::parse_odometry)]
+    pub odometry_noise: Option<super::odometry::OdometryArg>,
+    /// Pose correction on the robot (`RunConfig::correction`): `match` (scan-to-map matching,
+    /// the robot's default) or `off` (poses used as sent). Default: `match` with
+    /// `--odometry-noise`, else `off` (the true poses need no correction).
+    #[arg(long, value_enum)]
+    pub correction: Option<CorrectionArg>,
     /// Only decode a captured map stream (e.g. firmware/target/qemu/uart1.out) and summarise it.
     #[arg(long)]
     pub decode: Option<PathBuf>,
@@ -171,6 +186,27 @@ impl Default for FirmwareArgs {
             window_margin: 0,
             no_restore: false,
             range_cap: 0,
+            odometry_noise: None,
+            correction: None,
+        }
+    }
+}
+
+/// `--correction`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum CorrectionArg {
+    /// Poses used as sent.
+    Off,
+    /// Scan-to-map matching.
+    Match,
+}
+
+impl CorrectionArg {
+    /// The settings' value.
+    pub fn setting(self) -> ogm_core::config::PoseCorrection {
+        match self {
+            CorrectionArg::Off => ogm_core::config::PoseCorrection::Off,
+            CorrectionArg::Match => ogm_core::config::PoseCorrection::Match,
         }
     }
 }

@@ -103,7 +103,12 @@ pub(super) fn compare(
         };
         let mut fr = fwg.report;
         // Timing is the firmware's own business.
-        (fr.insert_ticks, fr.store_ticks, fr.sampler_ticks) = (0, 0, 0);
+        (
+            fr.insert_ticks,
+            fr.store_ticks,
+            fr.sampler_ticks,
+            fr.match_ticks,
+        ) = (0, 0, 0, 0);
         c.eq(|| format!("scan {seq} report"), &fr, &hg.report);
         c.eq(
             || format!("scan {seq} tiles"),

@@ -22,6 +22,7 @@
 //!
 //! Files: `args` (the options), `setup` (a run's world, simulation and settings), [`input`] (the
 //! robot's input), [`robot`] (the robot loop's two serial lines), `qemu` (the firmware in QEMU),
+//! [`odometry`] (`--odometry-noise`: drifting odometry sent, the corrected poses' error),
 //! `groups` (its stream decoded, by scan), `replay` (the host replay), `report` (what a run
 //! reports), `compare` (the stream against the replay), `accuracy` (`--accuracy`), `run` (a run
 //! and the command). Each imports only those before it.
@@ -34,6 +35,7 @@ pub mod input;
 pub mod log;
 mod log_run;
 pub mod online;
+pub mod odometry;
 mod qemu;
 mod replay;
 mod report;
@@ -43,7 +45,10 @@ pub mod robot;
 mod run;
 mod setup;
 
-pub use args::{parse_data_term, parse_estimator, FirmwareArgs, LidarArg, PatternArg, SamplerArgs};
+pub use args::{
+    parse_data_term, parse_estimator, CorrectionArg, FirmwareArgs, LidarArg, PatternArg,
+    SamplerArgs,
+};
 pub use qemu::{build_elf, build_elf_with, check_elf, repo_root, toolchain_missing};
 pub use replay::{marginals, replay_map, sizes_of, HostMemory, ReplaySession, FIRMWARE_SIZES};
 pub use report::{

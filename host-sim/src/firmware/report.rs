@@ -50,6 +50,9 @@ pub struct FirmwareReport {
     pub mismatches: Vec<String>,
     /// Comparisons made (reports, tiles, cells).
     pub checks: u64,
+    /// Drifting odometry sent (`--odometry-noise`): its error and the corrected poses' error
+    /// against the truth.
+    pub odometry: Option<super::odometry::OdometryReport>,
     /// Accuracy of the firmware's bounds vs the unbounded host configuration (`--accuracy`).
     pub accuracy: Option<Accuracy>,
     /// Where QEMU's log went.
@@ -92,6 +95,10 @@ pub struct Figures {
     /// Ray store add + first-occupied refresh, per scan, when the firmware times it separately
     /// (older firmware; 0 since both are part of `insert_and_seed`, i.e. of `insert_per_scan`).
     pub store_per_scan: f64,
+    /// The scan matcher (pose correction): instructions per scan (mean; 0 with correction off).
+    pub match_per_scan: f64,
+    /// … the largest.
+    pub match_per_scan_max: u64,
     /// Sampler patch updates in total.
     pub sampler_updates: u64,
     /// Sampler updates per scan (mean).
@@ -200,6 +207,7 @@ pub(super) fn figures(g: &Groups, hello: &OwnedHello) -> Figures {
     let mut f = Figures::default();
     let (mut beams, mut cells, mut insert, mut store, mut sampler, mut updates) =
         (0u64, 0u64, 0u64, 0u64, 0u64, 0u64);
+    let mut matching = 0u64;
     for s in g.scans.values() {
         let r = &s.report;
         f.scans += 1;
@@ -212,6 +220,10 @@ pub(super) fn figures(g: &Groups, hello: &OwnedHello) -> Figures {
         f.insert_per_scan_max = f
             .insert_per_scan_max
             .max((f64::from(r.insert_ticks) * ns_per_tick) as u64);
+        matching += u64::from(r.match_ticks);
+        f.match_per_scan_max = f
+            .match_per_scan_max
+            .max((f64::from(r.match_ticks) * ns_per_tick) as u64);
         let cycle =
             u64::from(r.insert_ticks) + u64::from(r.store_ticks) + u64::from(r.sampler_ticks);
         f.cycle_per_scan_max = f
@@ -224,6 +236,7 @@ pub(super) fn figures(g: &Groups, hello: &OwnedHello) -> Figures {
     f.insert_per_scan = insert as f64 * ns_per_tick / n;
     f.insert_per_cell = insert as f64 * ns_per_tick / cells.max(1) as f64;
     f.store_per_scan = store as f64 * ns_per_tick / n;
+    f.match_per_scan = matching as f64 * ns_per_tick / n;
     f.sampler_updates = updates;
     f.updates_per_scan = updates as f64 / n;
     f.per_patch = sampler as f64 * ns_per_tick / updates.max(1) as f64;
@@ -257,6 +270,23 @@ pub fn print_report(r: &FirmwareReport) {
     }
     if let Some(c) = &r.counters {
         println!("counters: {c:?}");
+    }
+    if let Some(o) = &r.odometry {
+        let e = |p: &super::odometry::PoseErrors| {
+            format!(
+                "{:.3} / {:.3} m, {:.2} / {:.2} deg",
+                p.mean_m, p.max_m, p.mean_deg, p.max_deg
+            )
+        };
+        println!(
+            "odometry {} (seed {}): sent {}; mapped at {} (mean / max vs the truth); {} scans corrected, {} cannot tell",
+            o.model,
+            o.seed,
+            e(&o.odometry),
+            e(&o.corrected),
+            o.matched,
+            o.cannot_tell
+        );
     }
     if let Some(rb) = &r.robot {
         println!(
@@ -292,6 +322,12 @@ pub fn print_report(r: &FirmwareReport) {
             f.cells_per_scan, f.store_per_scan, f.per_patch, f.sampler_updates,
             f.updates_per_scan, f.stack_used, f.stack_config, f.stack_size
         );
+        if f.match_per_scan > 0.0 {
+            println!(
+                "scan matcher (pose correction): {:.0} instructions per scan (max {})",
+                f.match_per_scan, f.match_per_scan_max
+            );
+        }
     }
     if let Some(a) = &r.accuracy {
         println!("accuracy, L = 9 + border (all cells | near mapped cells): max F1, max precision; online_*: first world only");

@@ -321,12 +321,13 @@ pub fn robot_input(
 
 /// How far the device's turn poses are from the truth: the largest position error (mm) and
 /// heading error (degrees) over `reports`, each against the true sensor pose at the turn's
-/// time.
+/// time. The turn's pose as placed by the pose messages (`ScanReport::odometry`), not the pose
+/// it was mapped at after the scan matcher's correction (`pose`): this checks the placement.
 pub fn pose_errors(reports: &[ScanReport], input: &RobotInput, config: &RunConfig) -> (f64, f64) {
     let (mut pos, mut head) = (0.0f64, 0.0f64);
     for r in reports {
         let want = input.trajectory.sensor_at(&config.mount, r.t_us);
-        let got = r.pose;
+        let got = r.odometry;
         pos = pos.max((f64::from(got.x_mm) - want.0).hypot(f64::from(got.y_mm) - want.1));
         let dh = (got.heading.to_radians() - want.2).rem_euclid(std::f64::consts::TAU);
         head = head.max(dh.min(std::f64::consts::TAU - dh).to_degrees());

@@ -14,6 +14,7 @@ use super::args::{FirmwareArgs, LidarArg, PatternArg};
 use super::compare::{compare, noise_report, Checker};
 use super::groups::{decode_captured, Groups};
 use super::input::{corrupt, encode_run_idle};
+use super::odometry::{with_odometry, OdometryReport};
 use super::qemu::{
     build_elf, build_elf_with, check_elf, repo_root, run_qemu, toolchain_missing, LidarLine,
     QemuRun,
@@ -58,7 +59,12 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
     }
     let config = run_config(&world, args, sim.mapper_config.max_range_mm);
     let idle_us = idle_periods_us(&args.idle)?;
-    let mut input = encode_run_idle(&config, &scans, args.garbage, args.repeat_frames, &idle_us)?;
+    // What the robot is told: the true poses, or drifting odometry along them.
+    let sent = match &args.odometry_noise {
+        Some(o) => with_odometry(&scans, o, args.seed),
+        None => scans.clone(),
+    };
+    let mut input = encode_run_idle(&config, &sent, args.garbage, args.repeat_frames, &idle_us)?;
     let corrupted = corrupt(&mut input.bytes, args.noise_ppm, args.seed);
     let mut report = FirmwareReport {
         config: Some(config),
@@ -146,6 +152,10 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
         report.checks = checker.checks;
         let mut seqs: Vec<&u32> = groups.scans.keys().collect();
         seqs.sort();
+        if let Some(o) = &args.odometry_noise {
+            let reports: Vec<ScanReport> = seqs.iter().map(|s| groups.scans[s].report).collect();
+            report.odometry = Some(OdometryReport::of(o, args.seed, &scans, &sent, &reports));
+        }
         updates_used = seqs
             .iter()
             .map(|s| groups.scans[s].report.sampler_updates)

@@ -62,6 +62,14 @@ pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunC
         .with_max_range_mm(max_range_mm)
         .with_seed(args.seed)
         .with_budget(budget);
+    // The simulator knows the true poses: sent as they are, they need no correction (matching
+    // exact poses costs online F1, docs/firmware.md "Pose correction"); drifting odometry
+    // (`--odometry-noise`) gets the robot's own default.
+    let robot = match (args.correction, &args.odometry_noise) {
+        (Some(c), _) => robot.with_correction(c.setting()),
+        (None, None) => robot.with_correction(ogm_core::config::PoseCorrection::Off),
+        (None, Some(_)) => robot,
+    };
     args.sampler.apply(RunConfig {
         cell_mm: (world.resolution_m * 1000.0).round() as u32,
         tiles_per_scan: args.tiles_per_scan,

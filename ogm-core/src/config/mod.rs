@@ -115,6 +115,31 @@ pub struct RunConfig {
     /// ([`crate::map::mapper::reach_cells`]).
     #[serde(default)]
     pub window_margin_cells: u16,
+    /// Pose correction (wire version 7): whether each scan's pose — odometry, from the link or
+    /// a tunnelled scan — is corrected by matching the scan against the robot's own map before
+    /// it is inserted ([`crate::session::Session::insert`]). A settings file without it reads
+    /// as [`PoseCorrection::Off`], the behaviour it then meant.
+    #[serde(default = "no_correction")]
+    pub correction: PoseCorrection,
+}
+
+/// Whether the robot corrects its poses by scan-to-map matching ([`crate::localize`]).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum PoseCorrection {
+    /// Poses are used as they come (exact poses: a simulator's truth, a log's corrected poses).
+    Off,
+    /// Each scan is matched against the map, starting from the odometry prediction, and
+    /// inserted at the corrected pose when the match can be trusted (else at the prediction).
+    /// With [`PoseInput::Fixed`] (no odometry at all) the robot tracks itself from matching
+    /// alone. The robot's default.
+    #[default]
+    Match,
+}
+
+/// `RunConfig::correction`'s value where a settings file lacks it.
+fn no_correction() -> PoseCorrection {
+    PoseCorrection::Off
 }
 
 /// The range sensor on the robot's own UART ([`crate::lidar::turn`]); scans a host tunnels do not use
@@ -238,6 +263,7 @@ impl RunConfig {
         poses: PoseInput::Link,
         lidar: LidarModel::Ld06,
         window_margin_cells: 0,
+        correction: PoseCorrection::Off,
     };
 
     /// The robot's settings ([`Default`]; what the firmware runs with when no host configures
@@ -268,6 +294,7 @@ impl RunConfig {
         },
         hot_share: 192,
         burn_in_sweeps: 2,
+        correction: PoseCorrection::Match,
         ..RunConfig::PAPER
     };
 
@@ -309,6 +336,12 @@ impl RunConfig {
             window_margin_cells: cells,
             ..self
         }
+    }
+
+    /// These settings with pose correction `correction`.
+    #[must_use]
+    pub const fn with_correction(self, correction: PoseCorrection) -> Self {
+        RunConfig { correction, ..self }
     }
 
     /// These settings with poses from `poses`.

@@ -114,7 +114,7 @@ pub mod reference;
 pub use field::MapView;
 pub use matcher::{match_scan, MatchResult, Quality, Verdict, Work};
 pub use points::{prepare_points, PointStats, ScanPoint};
-pub use tracker::{Correction, Tracker};
+pub use tracker::{Correction, TrackState, Tracker};
 
 use crate::error::{Error, Result};
 use crate::types::angle::Angle;
@@ -144,6 +144,12 @@ pub struct MatchConfig {
     /// Hits at or beyond this are not matched (far points are noisy and make the rotation
     /// dominate the system).
     pub max_range_mm: u32,
+    /// Added to every hit's range before it becomes a point (after the range filters): where
+    /// the map's occupied cells lie behind a reading. 0 for a map whose hits mark the reading's
+    /// own cell; a face-band map (`crate::config::RunConfig::face_band`) puts its occupied
+    /// mass about a band's σ behind the reading, and matching the reading itself would pull
+    /// every point that far into the wall.
+    pub hit_offset_mm: u16,
     /// A hit closer than this to the last point kept (in the order of the beams) is skipped:
     /// near the robot the beams crowd, and evenly spread points weigh every wall alike.
     pub min_spacing_mm: u32,
@@ -214,6 +220,7 @@ impl Default for MatchConfig {
         MatchConfig {
             min_range_mm: 100,
             max_range_mm: 20_000,
+            hit_offset_mm: 0,
             min_spacing_mm: 45,
             floor: LogOdds(0),
             occupied: LogOdds(2048),
@@ -242,6 +249,20 @@ impl Default for MatchConfig {
 }
 
 impl MatchConfig {
+    /// These settings for a robot without odometry (every scan's "odometry" the same pose, e.g.
+    /// a board powered without a host): the prediction is then where the last scan was, so its
+    /// priors are a sixteenth of the defaults' — the match, not the prediction, decides how far
+    /// the robot moved (Hector SLAM's setting). The search window stays: a robot that moves
+    /// more than `max_shift_mm` or turns more than `max_turn` between two scans is lost.
+    #[must_use]
+    pub const fn without_odometry(self) -> Self {
+        MatchConfig {
+            prior_trans_q8: self.prior_trans_q8 / 16,
+            prior_rot: self.prior_rot / 16,
+            ..self
+        }
+    }
+
     /// Checks the settings: `floor < occupied`, `levels ≤ MAX_LEVEL`, both radii in
     /// `1..=MAX_RADIUS`, a non-empty range.
     pub fn validate(&self) -> Result<()> {

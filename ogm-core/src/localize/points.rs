@@ -10,7 +10,10 @@ use crate::localize::{MatchConfig, MAX_POINTS, MAX_POINT_SUB, SUB};
 use crate::types::angle::Q30_ONE;
 use crate::types::scan::{Beam, Range};
 
-/// A point in the robot frame (x forward, y left), in 1/[`SUB`] cell.
+/// A point in the robot frame (x forward, y left), in 1/[`SUB`] cell. `repr(C)`: two `i32`s,
+/// so a board may lend two words of idle `u32` scratch per point (the session's point buffer
+/// shares the mapper's marks: [`crate::session::MarkWords`]).
+#[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ScanPoint {
@@ -43,6 +46,7 @@ fn point_of(beam: &Beam, cell_mm: u32, cfg: &MatchConfig) -> Option<ScanPoint> {
     if r < cfg.min_range_mm || r >= cfg.max_range_mm {
         return None;
     }
+    let r = r.saturating_add(u32::from(cfg.hit_offset_mm));
     // Range in sub-cells; `cell_mm ≥ 1` (a geometry's cells are never empty, `max` makes sure).
     let q = if r < 1 << 23 {
         // r · 256 < 2^31: a 32-bit division (a 64-bit one is a library call on the M4).

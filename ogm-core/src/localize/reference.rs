@@ -58,7 +58,8 @@ pub fn point_f64(beam: &Beam, cell_mm: u32, cfg: &MatchConfig) -> Option<(f64, f
     if r < cfg.min_range_mm || r >= cfg.max_range_mm {
         return None;
     }
-    let q = f64::from(r) / f64::from(cell_mm.max(1));
+    let r = f64::from(r) + f64::from(cfg.hit_offset_mm);
+    let q = r / f64::from(cell_mm.max(1));
     let a = beam.angle.to_radians();
     Some((q * libm::cos(a), q * libm::sin(a)))
 }

@@ -12,14 +12,14 @@ use crate::types::angle::Angle;
 use crate::types::geometry::Pose;
 use crate::types::scan::Beam;
 
-/// Scan-to-map pose tracking over a buffer of `N` points (8 bytes each; 512 covers an LD06 turn).
+/// Scan-to-map pose tracking over a buffer of `N` points (8 bytes each; 512 covers an LD06 turn):
+/// the settings, the points and a [`TrackState`].
 #[derive(Clone, Debug)]
 pub struct Tracker<const N: usize> {
     config: MatchConfig,
     matching: bool,
     points: [ScanPoint; N],
-    /// The last scan's odometry pose and the pose it was mapped with.
-    last: Option<(Pose, Pose)>,
+    state: TrackState,
 }
 
 /// What [`Tracker::update`] decided for one scan.
@@ -29,6 +29,8 @@ pub struct Correction {
     /// The pose to insert the scan with (and to report): the match's if it is usable
     /// ([`Verdict::is_usable`]), else the prediction.
     pub pose: Pose,
+    /// The odometry pose the scan came with.
+    pub odometry: Pose,
     /// The prediction: the last corrected pose moved by the odometry step.
     pub predicted: Pose,
     /// The match (`None` when matching is off).
@@ -42,6 +44,84 @@ impl Correction {
     pub fn verdict(&self) -> Option<Verdict> {
         self.matched.map(|m| m.verdict)
     }
+
+    /// No correction: the scan at its odometry pose (nothing matched).
+    pub fn none(odometry: &Pose) -> Self {
+        Correction {
+            pose: *odometry,
+            odometry: *odometry,
+            predicted: *odometry,
+            matched: None,
+            points: PointStats::default(),
+        }
+    }
+}
+
+/// The correction map ← odometry without settings or points (28 bytes): what a
+/// [`crate::Session`] keeps, its point buffer lent per scan ([`TrackState::update`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TrackState {
+    /// The last scan's odometry pose and the pose it was mapped with.
+    last: Option<(Pose, Pose)>,
+}
+
+impl TrackState {
+    /// No scan seen yet: the next scan's pose is its odometry pose.
+    pub const fn new() -> Self {
+        TrackState { last: None }
+    }
+
+    /// Forgets the correction (a new map).
+    pub fn reset(&mut self) {
+        self.last = None;
+    }
+
+    /// The last scan's odometry pose and corrected pose, if any.
+    pub fn last(&self) -> Option<(Pose, Pose)> {
+        self.last
+    }
+
+    /// The corrected pose of an odometry pose under the current correction: the last corrected
+    /// pose moved by the odometry step since.
+    pub fn correct(&self, odometry: &Pose) -> Pose {
+        match self.last {
+            Some((odo, pose)) => compose(&pose, &between(&odo, odometry)),
+            None => *odometry,
+        }
+    }
+
+    /// One scan ([`Tracker::update`]) with the settings `config`, matching on or off, and
+    /// `points` as the scan's point buffer (its first [`PointStats::kept`] entries are
+    /// overwritten).
+    pub fn update(
+        &mut self,
+        config: &MatchConfig,
+        matching: bool,
+        map: &MapView<'_>,
+        odometry: &Pose,
+        beams: &[Beam],
+        points: &mut [ScanPoint],
+    ) -> Correction {
+        let predicted = self.correct(odometry);
+        let mut out = Correction {
+            pose: predicted,
+            odometry: *odometry,
+            predicted,
+            matched: None,
+            points: PointStats::default(),
+        };
+        if matching {
+            let cell = map.geometry().cell_mm();
+            out.points = prepare_points(beams, cell, config, points);
+            let pts = points.get(..out.points.kept).unwrap_or(&[]);
+            let r = match_scan(map, pts, &predicted, config);
+            out.pose = r.accepted();
+            out.matched = Some(r);
+        }
+        self.last = Some((*odometry, out.pose));
+        out
+    }
 }
 
 impl<const N: usize> Tracker<N> {
@@ -51,7 +131,7 @@ impl<const N: usize> Tracker<N> {
             config,
             matching: true,
             points: [ScanPoint { x: 0, y: 0 }; N],
-            last: None,
+            state: TrackState::new(),
         }
     }
 
@@ -78,21 +158,18 @@ impl<const N: usize> Tracker<N> {
 
     /// Forgets the correction (a new map): the next scan's pose is its odometry pose.
     pub fn reset(&mut self) {
-        self.last = None;
+        self.state.reset();
     }
 
     /// The last scan's odometry pose and corrected pose, if any.
     pub fn last(&self) -> Option<(Pose, Pose)> {
-        self.last
+        self.state.last()
     }
 
     /// The corrected pose of an odometry pose under the current correction (for poses between
     /// scans, e.g. a live view): the last corrected pose moved by the odometry step since.
     pub fn correct(&self, odometry: &Pose) -> Pose {
-        match self.last {
-            Some((odo, pose)) => compose(&pose, &between(&odo, odometry)),
-            None => *odometry,
-        }
+        self.state.correct(odometry)
     }
 
     /// One scan: predicts its pose from `odometry`, matches `beams` (robot frame, as inserted)
@@ -100,25 +177,17 @@ impl<const N: usize> Tracker<N> {
     /// it with. Reads at most `config().max_reads(N)` cells; never panics.
     ///
     /// A robot without odometry passes the same pose (e.g. [`Pose::default`]) every scan: the
-    /// prediction is then the last corrected pose (use weak priors and a wide window then).
+    /// prediction is then the last corrected pose (use weak priors and a wide window then:
+    /// [`MatchConfig::without_odometry`]).
     pub fn update(&mut self, map: &MapView<'_>, odometry: &Pose, beams: &[Beam]) -> Correction {
-        let predicted = self.correct(odometry);
-        let mut out = Correction {
-            pose: predicted,
-            predicted,
-            matched: None,
-            points: PointStats::default(),
-        };
-        if self.matching {
-            let cell = map.geometry().cell_mm();
-            out.points = prepare_points(beams, cell, &self.config, &mut self.points);
-            let pts = self.points.get(..out.points.kept).unwrap_or(&[]);
-            let r = match_scan(map, pts, &predicted, &self.config);
-            out.pose = r.accepted();
-            out.matched = Some(r);
-        }
-        self.last = Some((*odometry, out.pose));
-        out
+        self.state.update(
+            &self.config,
+            self.matching,
+            map,
+            odometry,
+            beams,
+            &mut self.points,
+        )
     }
 }
 

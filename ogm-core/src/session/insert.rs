@@ -2,6 +2,7 @@
 //! newly observed cells seeded into the sampler's sample, its rays into the store when the
 //! data term reads rays ([`insert_and_seed`]); and what it tells the caller ([`Inserted`]).
 
+use crate::localize::Correction;
 use crate::map::mapper::{self, Mapper, MapperConfig, ScanStats};
 use crate::sampler::gibbs::{Count, Gibbs, LocalRay, PatchPrior};
 use crate::sampler::ray_store::{RayStore, StoredRay, StoredScan};
@@ -19,6 +20,9 @@ pub struct Inserted<'b> {
     /// Beams whose rays left a rolling window (clipped to it; 0 with a fixed grid, whose
     /// clipping is not counted).
     pub beams_clipped: u32,
+    /// The pose the scan was inserted at and how it was found (the odometry pose it came
+    /// with, the scan matcher's result).
+    pub correction: Correction,
     geometry: GridGeometry,
     mapper: MapperConfig,
     pose: Pose,
@@ -52,6 +56,7 @@ where
         stats,
         rays,
         beams_clipped: 0,
+        correction: Correction::none(pose),
         geometry: *mapper.grid().geometry(),
         mapper: *mapper.config(),
         pose: *pose,

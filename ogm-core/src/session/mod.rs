@@ -35,13 +35,18 @@
 mod insert;
 mod restore;
 mod settings;
+mod track;
 mod window;
 
 pub use insert::Inserted;
 pub use restore::{RestoreError, RestoreStep, TileRestore, MAX_RESTORE_CELLS};
+#[cfg(feature = "alloc")]
+pub use track::OwnedMarks;
+pub use track::{correction_report, MarkWords, TRACK_POINTS};
 pub use window::{LeavingTile, Shift};
 
 use crate::config::RunConfig;
+use crate::localize::{Correction, TrackState};
 use crate::sampler::gibbs::{self, BorderPrior, Count, Gibbs, LocalRay};
 use crate::sampler::ray_store::{RayStore, StoredRay, StoredScan};
 use crate::wire::SamplerReport;
@@ -54,8 +59,9 @@ pub trait Storage {
     type Count: Count;
     /// Log-odds cells.
     type Grid: AsRef<[LogOdds]> + AsMut<[LogOdds]>;
-    /// The mapper's per-scan marks ([`crate::map::mapper::marks_len`] words).
-    type Marks: AsRef<[u32]> + AsMut<[u32]>;
+    /// The mapper's per-scan marks ([`crate::map::mapper::marks_len`] words), which also lend
+    /// the scan matcher its points ([`MarkWords`]).
+    type Marks: MarkWords;
     /// The ray store's scans.
     type Scans: AsRef<[StoredScan]> + AsMut<[StoredScan]>;
     /// The ray store's rays.
@@ -217,12 +223,36 @@ pub struct Session<S: Storage> {
     store: RayStore<S::Scans, S::Rays>,
     gibbs: SessionGibbs<S>,
     window: window::WindowState,
+    /// The correction map ← odometry.
+    track: TrackState,
+    /// The last [`Session::correct`], for the insert of the same scan.
+    pending: Option<Correction>,
 }
 
 impl<S: Storage> Session<S> {
     /// Builds the engine over `buffers` with the host's settings, and resets the sampler on the
     /// empty map. The grid is `buffers.width × buffers.height` cells placed by `config`.
     pub fn new(config: RunConfig, buffers: Buffers<S>) -> Result<Self, SessionError> {
+        let mut s = Session::parts(config, buffers)?;
+        s.reset()?;
+        Ok(s)
+    }
+
+    /// [`Session::new`] into `slot` (a board's `static`): the same engine, built where it
+    /// stays. The sampler is reset there, not in a local copy, so the engine (~5 KiB on the
+    /// firmware) is not on the stack once more while it is built.
+    pub fn new_in(
+        slot: &mut Option<Self>,
+        config: RunConfig,
+        buffers: Buffers<S>,
+    ) -> Result<&mut Self, SessionError> {
+        let s = slot.insert(Session::parts(config, buffers)?);
+        s.reset()?;
+        Ok(s)
+    }
+
+    /// The engine before the sampler's reset.
+    fn parts(config: RunConfig, buffers: Buffers<S>) -> Result<Self, SessionError> {
         let geometry = config
             .geometry(buffers.width, buffers.height)
             .map_err(SessionError::Geometry)?;
@@ -261,15 +291,15 @@ impl<S: Storage> Session<S> {
             },
         )
         .map_err(SessionError::Sampler)?;
-        let mut s = Session {
+        Ok(Session {
             config,
             mapper,
             store,
             gibbs,
             window: window::WindowState::default(),
-        };
-        s.reset()?;
-        Ok(s)
+            track: TrackState::new(),
+            pending: None,
+        })
     }
 
     /// Restarts the sampler on the current map (estimates cleared, sample from the log-odds).
@@ -279,18 +309,37 @@ impl<S: Storage> Session<S> {
             .map_err(SessionError::Sampler)
     }
 
-    /// Integrates a scan taken at `pose`: log-odds update, seeding of the cells it observes for
-    /// the first time in the sampler's sample, its rays into the store when the data term reads
-    /// rays. With a rolling window, call [`Session::shift_for`] (and stream and apply its shift)
-    /// first; beams whose rays leave the window are clipped and counted
-    /// ([`Inserted::beams_clipped`]). Fails only if the mapper rejects the scan, which a session's mapper (its marks
-    /// checked when built, a ray model: the settings cannot name the cone model) never does.
+    /// Integrates a scan taken at `odometry`: corrects the pose by matching the scan against
+    /// the map ([`Session::correct`], with [`crate::config::PoseCorrection::Match`]; else the
+    /// pose as it came), then, at the corrected pose: log-odds update, seeding of the cells it
+    /// observes for the first time in the sampler's sample, its rays into the store when the
+    /// data term reads rays. [`Inserted::correction`] says which pose was used and why.
+    ///
+    /// With a rolling window, call [`Session::correct`] first, then [`Session::shift_for`] with
+    /// the corrected pose (and stream and apply its shift): this insert then uses that
+    /// correction (the last `correct` of the same `odometry` pose). Beams whose rays leave the
+    /// window are clipped and counted ([`Inserted::beams_clipped`]). Fails only if the mapper
+    /// rejects the scan, which a session's mapper (its marks checked when built, a ray model:
+    /// the settings cannot name the cone model) never does.
     // Out of line: inlined into the firmware's scan step, the sweep's register allocation
     // followed whatever code surrounds the call (+0.8 % of its instructions on the M4 from a
     // change there that the sweep never runs); on its own it is the same code for every caller,
     // and 0.3 % over the inlined original in the self-test.
     #[inline(never)]
-    pub fn insert<'b>(&mut self, pose: &Pose, beams: &'b [Beam]) -> crate::Result<Inserted<'b>> {
+    pub fn insert<'b>(
+        &mut self,
+        odometry: &Pose,
+        beams: &'b [Beam],
+    ) -> crate::Result<Inserted<'b>> {
+        let correction = match self.pending.take() {
+            Some(c) if c.odometry == *odometry => c,
+            _ => {
+                let c = self.correct(odometry, beams);
+                self.pending = None;
+                c
+            }
+        };
+        let pose = &correction.pose;
         let clipped = if self.config.window_margin_cells > 0 {
             self.count_clipped(pose, beams)
         } else {
@@ -305,6 +354,7 @@ impl<S: Storage> Session<S> {
         )?;
         let mut inserted = insert::inserted(&self.mapper, pose, beams, done);
         inserted.beams_clipped = clipped;
+        inserted.correction = correction;
         Ok(inserted)
     }
 
@@ -386,7 +436,7 @@ pub struct Owned<N>(core::marker::PhantomData<N>);
 impl<N: Count> Storage for Owned<N> {
     type Count = N;
     type Grid = alloc::vec::Vec<LogOdds>;
-    type Marks = alloc::vec::Vec<u32>;
+    type Marks = OwnedMarks;
     type Scans = alloc::vec::Vec<StoredScan>;
     type Rays = alloc::vec::Vec<StoredRay>;
     type Sample = alloc::vec::Vec<u32>;
@@ -406,7 +456,7 @@ impl<N: Count> Owned<N> {
             width: sizes.width,
             height: sizes.height,
             grid: vec![LogOdds::ZERO; cells],
-            marks: vec![0; crate::map::mapper::marks_len(cells)],
+            marks: OwnedMarks::new(crate::map::mapper::marks_len(cells)),
             scans: vec![StoredScan::default(); sizes.scans.max(1)],
             rays: vec![StoredRay::default(); sizes.rays.max(1)],
             sample: vec![0; cells.div_ceil(32)],

@@ -1,12 +1,24 @@
 //! How a session reads the run's settings: the mapper's, the forward model's and the sampler's
 //! configuration, each derived from the one [`RunConfig`].
 
-use crate::config::RunConfig;
+use crate::config::{PoseCorrection, PoseInput, RunConfig};
 use crate::error::Result;
+use crate::localize::MatchConfig;
 use crate::map::mapper::MapperConfig;
 use crate::map::sensor_model::InverseSensorModel;
 use crate::sampler::forward_model::ForwardModel;
 use crate::sampler::gibbs::SamplerConfig;
+
+/// Cell reads per scan for the matcher's search and passes: with an LD06 turn's 456 beams at
+/// most ~1.4 M Cortex-M4 instructions per scan (the bar: 1.5 M, a quarter of a 64 MHz
+/// M4's 10 Hz period), measured in QEMU (docs/firmware.md, "Pose correction").
+const MATCH_BUDGET_READS: u32 = 40_000;
+/// A face band's hit offset, in σ (Q8).
+const OFFSET_PER_SIGMA_Q8: u32 = 256;
+/// A face band's least overlap (‰): its thick walls let a wrong pose touch some of them.
+const MIN_OVERLAP_PERMILLE: u16 = 500;
+/// A face band's quality probe, in σ (Q8).
+const PROBE_PER_SIGMA_Q8: u32 = 256;
 
 impl RunConfig {
     /// The mapper settings: Hähnel's ray model with the free update scaled by
@@ -40,6 +52,44 @@ impl RunConfig {
             f64::from(self.outlier_ppm) / 1e6,
             f64::from(self.max_range_mm) / f64::from(self.cell_mm.max(1)),
         )
+    }
+
+    /// The scan matcher's settings ([`MatchConfig::default`], measured on the shared logs),
+    /// hits matched up to the sensor's range and from its minimum range on; with no odometry
+    /// ([`PoseInput::Fixed`]) [`MatchConfig::without_odometry`]. `None` when correction is off.
+    pub fn match_config(&self) -> Option<MatchConfig> {
+        if self.correction == PoseCorrection::Off {
+            return None;
+        }
+        let d = MatchConfig::default();
+        let c = MatchConfig {
+            max_range_mm: d.max_range_mm.min(self.max_range_mm),
+            min_range_mm: d.min_range_mm.max(self.min_range_mm),
+            budget_reads: MATCH_BUDGET_READS,
+            ..d
+        };
+        let c = if self.face_band {
+            // The band's occupied mass lies behind the reading (its weighted centre about σ
+            // behind it), and it is several cells thick: points go where it is, the quality
+            // probes step across it, and a wrong pose touching a few thick walls is not an
+            // overlap.
+            let sigma_mm = u64::from(self.sigma_milli_cells) * u64::from(self.cell_mm) / 1000;
+            let sigma = u32::try_from(sigma_mm).unwrap_or(u32::MAX);
+            MatchConfig {
+                hit_offset_mm: u16::try_from(sigma * OFFSET_PER_SIGMA_Q8 / 256).unwrap_or(u16::MAX),
+                probe_mm: c
+                    .probe_mm
+                    .max(sigma.saturating_mul(PROBE_PER_SIGMA_Q8) / 256),
+                min_overlap_permille: c.min_overlap_permille.max(MIN_OVERLAP_PERMILLE),
+                ..c
+            }
+        } else {
+            c
+        };
+        Some(match self.poses {
+            PoseInput::Link => c,
+            PoseInput::Fixed => c.without_odometry(),
+        })
     }
 
     /// The sampler settings. The initial sample uses [`SamplerConfig`]'s default threshold

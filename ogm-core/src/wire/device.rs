@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::correction::CorrectionReport;
 use super::ranges::ScanRanges;
 use super::tile::Tile;
 use crate::config::RunConfig;
@@ -75,7 +76,8 @@ pub struct Hello<'a> {
 pub struct ScanReport {
     /// Scan number.
     pub seq: u32,
-    /// Pose used.
+    /// The pose the scan was mapped at: [`ScanReport::odometry`] corrected by the scan matcher
+    /// (version 7; before, and with correction off, the pose as it came).
     pub pose: Pose,
     /// Beams in the scan.
     pub beams: u32,
@@ -96,6 +98,14 @@ pub struct ScanReport {
     /// When the scan began, µs of the lidar clock (turns read on the robot's UART; 0 for
     /// scans a host tunnelled).
     pub t_us: u64,
+    /// The pose the scan came with (version 7): odometry, from the link's pose messages or a
+    /// tunnelled scan, or the fixed pose of a robot without odometry.
+    pub odometry: Pose,
+    /// How [`ScanReport::pose`] was found: the matcher's verdict and quality (version 7).
+    pub correction: CorrectionReport,
+    /// Timer ticks of the scan matcher (version 7; part of neither `insert_ticks` nor
+    /// `sampler_ticks`).
+    pub match_ticks: u32,
 }
 
 /// The ray store's state.

@@ -230,6 +230,7 @@ mod tests {
                 sample_us: u16::MAX,
             },
             window_margin_cells: u16::MAX,
+            correction: crate::config::PoseCorrection::Match,
         }
     }
 

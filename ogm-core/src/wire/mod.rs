@@ -24,6 +24,7 @@
 //! [`VERSION`]. A frame with another version is counted and dropped, never misread.
 
 // One file per concern; everything is re-exported here, so users write `wire::HostMsg`.
+mod correction;
 mod device;
 mod error;
 mod fnv;
@@ -33,6 +34,7 @@ mod ranges;
 mod restore;
 mod tile;
 
+pub use correction::{CorrectionReport, MatchVerdict};
 pub use device::{
     ConfigFault, Counters, DeviceError, DeviceMsg, Done, ErrorCode, Hello, IdleReport,
     LidarCounters, LinkCounters, LinkFault, RestoreFault, SamplerReport, ScanReport, StoreReport,
@@ -56,4 +58,4 @@ pub use tile::{
 };
 
 /// Schema version, the first byte of every frame.
-pub const VERSION: u8 = 6;
+pub const VERSION: u8 = 7;

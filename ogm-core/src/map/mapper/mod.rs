@@ -183,6 +183,13 @@ where
         &mut self.grid
     }
 
+    /// The map and the marks at once. The marks are zero between scans and must be zero again
+    /// before the next insert: a caller may use them as scratch in between (the session's scan
+    /// matcher keeps its points there).
+    pub fn grid_and_marks(&mut self) -> (&LogOddsGrid<S>, &mut M) {
+        (&self.grid, &mut self.marks)
+    }
+
     /// The settings.
     pub fn config(&self) -> &MapperConfig {
         &self.config
