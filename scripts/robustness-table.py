@@ -54,6 +54,29 @@ for (cond, log) in sorted(rows, key=lambda k: key(k)):
         sig.append(f"{sum(s for _, _, s in v)/len(v):.2f}")
     print(f"| {cond[0]} | {cond[1]} | {log} | {' / '.join(trad)} | {' | '.join(cells)} | {' / '.join(sig)} |")
 print(f"\nTargets met (every seed): {met} of {total}.")
+# The docs' table (docs/results.md, "Real logs made noisier"): per condition, traditional →
+# robot averaged over logs and seeds, and the worst (log, seed) margin.
+print("\nPer condition, traditional → robot (mean over logs and seeds) [worst log and seed: "
+      "robot − traditional]:\n")
+print("| added σ (cells) | outliers | exp 1 | exp 2 | exp 3 | targets met |")
+print("|---|---|---|---|---|---|")
+for cond in sorted({c for c, _ in rows}, key=lambda c: (float(c[0]), float(c[1]))):
+    cells, n_met, n_all = [], 0, 0
+    for x in (1, 2, 3):
+        v = [r for (c, _), e in rows.items() if c == cond for r in e.get(x, [])]
+        if not v:
+            cells.append("—"); continue
+        t = sum(a for a, _, _ in v) / len(v)
+        r = sum(b for _, b, _ in v) / len(v)
+        cells.append(f"{t:.3f} → {r:.3f} [{min(b - a for a, b, _ in v):+.3f}]")
+    for (c, log), e in rows.items():
+        if c != cond:
+            continue
+        for x, v in e.items():
+            n_all += 1
+            n_met += all(b - a >= TARGET[x] - 1e-9 for a, b, _ in v)
+    pct = f"{float(cond[1]) * 100:.0f} %"
+    print(f"| {cond[0]} | {pct} | {' | '.join(cells)} | {n_met} of {n_all} |")
 if fails:
     print("Missed: " + "; ".join(f"σ {c[0]} P {c[1]} {l} exp {x} ({d:+.3f})" for c, l, x, d in fails))
 print("\nCommands:\n")

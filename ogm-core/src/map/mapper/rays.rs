@@ -122,7 +122,7 @@ impl<'a> Rays<'a> {
         // N < 2^16: the count fits a u32.
         let cells = (n.checked_sub(b.first_step(range, traced, n))? + 1) as u32;
         let walk = ray.walk_back(end_index, cells);
-        // reach_t ≤ 12·2^16, dt ≤ 2^21 and the far edge's shift ≤ 2^20 (`Band::of`,
+        // reach_t ≤ 12·2^16, dt ≤ 2^22 and the far edge's shift ≤ 2^20 (`Band::of`,
         // `Band::step_t`, `Band::far_shift`): all fit an i32.
         let dt = b.step_t(traced, n);
         Some((walk, ((b.reach_t + b.far_shift(dt)) as i32, -(dt as i32))))
@@ -148,7 +148,8 @@ impl<'a> Rays<'a> {
         }
         // In eighths of σ (Q16): the ray's end lies 8·reach/σ past the reading and each step
         // 8·traced/(σ·n) after the one before, so step k lies (n − k) steps before the end.
-        // From the first step on, (n − first)·dt ≤ 2·reach·2^19/σ ≤ 24·2^16: |t0| ≤ 36·2^16.
+        // From the first step on, (n − first)·dt ≤ 2·reach·2^19/σ ≤ 24·2^16, or one step before
+        // a narrow band's end of dt ≤ 4·reach_t (`Band::first_step`): |t0| ≤ 36·2^16.
         // A far edge moves every offset on by its shift (≤ 16·2^16): the last ≤ 28·2^16.
         let dt = b.step_t(traced, n);
         let back = n
