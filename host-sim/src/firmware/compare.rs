@@ -214,9 +214,15 @@ pub(super) fn compare(
         .last()
         .map_or((0, 0), |r| (r.origin_x / e, r.origin_y / e));
     let (tiles_x, tiles_y) = (i32::from(FW.width) / e, i32::from(FW.height) / e);
-    for t in &g.all_tiles {
+    // A tile the window left and came back over holds this visit's data only: unless the host
+    // sent the stored tile back, what was streamed before it entered again is not on the
+    // robot (a region re-entered but not mapped again is unknown there).
+    let restored = g.windows.last().is_some_and(|r| r.tiles_restored > 0);
+    let entered = |tx: i32, ty: i32| last_entry(&g.windows, e, tiles_x, tiles_y, tx, ty);
+    for (t, &seen) in g.all_tiles.iter().zip(&g.tile_windows) {
         let (x, y) = (t.tx - ox, t.ty - oy);
-        if (0..tiles_x).contains(&x) && (0..tiles_y).contains(&y) {
+        let current = restored || seen >= entered(t.tx, t.ty);
+        if current && (0..tiles_x).contains(&x) && (0..tiles_y).contains(&y) {
             streamed.apply(&ogm_field::stream::OwnedTile {
                 tx: x,
                 ty: y,
@@ -242,6 +248,33 @@ pub(super) fn compare(
         }
     }
     Ok(())
+}
+
+/// How many `Window` messages had come when the window last came over building tile (`tx`,
+/// `ty`) (0: it has been inside since the start, whose window's origin is the building's
+/// origin). Each `Window` carries the origin (cells) after its shift.
+fn last_entry(
+    windows: &[ogm_core::wire::WindowReport],
+    edge: i32,
+    tiles_x: i32,
+    tiles_y: i32,
+    tx: i32,
+    ty: i32,
+) -> usize {
+    let inside = |o: (i32, i32)| {
+        let (x, y) = (tx - o.0 / edge, ty - o.1 / edge);
+        (0..tiles_x).contains(&x) && (0..tiles_y).contains(&y)
+    };
+    let mut before = inside((0, 0));
+    let mut entry = 0;
+    for (i, w) in windows.iter().enumerate() {
+        let now = inside((w.origin_x, w.origin_y));
+        if now && !before {
+            entry = i + 1;
+        }
+        before = now;
+    }
+    entry
 }
 
 fn first_diff<T: PartialEq + std::fmt::Display>(

@@ -22,6 +22,9 @@ pub(super) struct Groups {
     pub(super) configured: Option<RunConfig>,
     pub(super) errors: usize,
     pub(super) all_tiles: Vec<OwnedTile>,
+    /// For each of `all_tiles`, how many `Window` messages came before it: which visit of the
+    /// window streamed it.
+    pub(super) tile_windows: Vec<usize>,
     pub(super) idles: HashMap<u32, ogm_core::wire::IdleReport>,
     /// Every `Window` message (a shift's announcement, and the end of the run's).
     pub(super) windows: Vec<ogm_core::wire::WindowReport>,
@@ -61,6 +64,7 @@ impl Groups {
                 }
                 DeviceEvent::Tile(t) => {
                     g.all_tiles.push(t.clone());
+                    g.tile_windows.push(g.windows.len());
                     match current.and_then(|s| g.scans.get_mut(&s)) {
                         Some(s) => s.tiles.push(t.clone()),
                         None if in_shift => g.shift_tiles.push(t.clone()),

@@ -133,6 +133,12 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         Some((sigma, tau)) => RunConfig::ROBOT.with_sensor(sigma, tau)?,
         None => RunConfig::ROBOT,
     };
+    // A log's poses are SLAM-corrected: sent as they are they need no correction, as the
+    // simulator's true poses (`--correction match` matches them all the same).
+    let robot = robot.with_correction(
+        args.correction
+            .map_or(ogm_core::config::PoseCorrection::Off, |c| c.setting()),
+    );
     let base = robot
         .with_origin_mm(ox, oy)
         .with_max_range_mm(match args.range_cap {
