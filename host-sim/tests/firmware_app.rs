@@ -409,8 +409,9 @@ fn a_moving_robot_places_each_turn_at_the_interpolated_pose() {
     };
     for r in &reports {
         // Linear interpolation of a straight line: exact to the mm; heading within 2 units.
+        // (`odometry`: the pose the turn came with; `pose` is where the scan matcher put it.)
         let want = m.sensor_pose(&truth(r.t_us));
-        let got = r.pose;
+        let got = r.odometry;
         assert!((got.x_mm - want.x_mm).abs() <= 1, "{got:?} {want:?}");
         assert!((got.y_mm - want.y_mm).abs() <= 1, "{got:?} {want:?}");
         assert!(
