@@ -127,12 +127,16 @@ impl VerdictCounts {
 /// unconstrained, 379 trusted and 21 % without it.
 pub fn robot_config(geometry: &GridGeometry, max_range_mm: u32, face_band: bool) -> RunConfig {
     let (x, y) = geometry.origin_mm();
+    // The session's own correction off: [`track`] matches with its own settings
+    // ([`TrackSettings::matcher`], which `examples/match_eval.rs` tunes) and inserts at the
+    // corrected pose; on, the session would match that pose a second time.
     RunConfig {
         cell_mm: geometry.cell_mm(),
         face_band,
         ..RunConfig::ROBOT
             .with_origin_mm(x, y)
             .with_max_range_mm(max_range_mm)
+            .with_correction(ogm_core::config::PoseCorrection::Off)
     }
 }
 
