@@ -107,6 +107,7 @@ impl Listener {
             }
             DeviceEvent::Scan(r) => {
                 self.stats.scans_seen += 1;
+                self.stats.corrections.add(&r.correction);
                 let p = r.pose;
                 let heading = f64::from(p.heading.0) * std::f64::consts::TAU / 65_536.0;
                 let (x, y) = (f64::from(p.x_mm) / 1000.0, f64::from(p.y_mm) / 1000.0);

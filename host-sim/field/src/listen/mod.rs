@@ -254,6 +254,13 @@ impl Listener {
             line += &format!(" | robot: {} scans, {} errors", r.scans, r.errors);
         }
         line += &format!(" | {} tiles", s.tiles);
+        let c = &s.corrections;
+        if c.corrected + c.cannot_tell > 0 {
+            line += &format!(
+                " | poses corrected {}, odometry kept {}",
+                c.corrected, c.cannot_tell
+            );
+        }
         if s.reconnects > 0 {
             line += &format!(
                 " | {} reconnects, {:.1} s down",

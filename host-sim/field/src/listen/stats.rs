@@ -9,6 +9,33 @@ use serde::Serialize;
 
 use crate::stream::OwnedHello;
 
+/// Scans by what the robot's scan matcher decided (`ScanReport::correction`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct CorrectionCounts {
+    /// Correction off: mapped at the pose as sent.
+    pub off: u64,
+    /// Mapped at a corrected pose (trusted, or ambiguous in one direction or the rotation).
+    pub corrected: u64,
+    /// The matcher could not tell (a new area, too few points, an odometry jump…): mapped at
+    /// the odometry prediction.
+    pub cannot_tell: u64,
+    /// Scans of a robot without odometry, tracking itself from matching alone.
+    pub without_odometry: u64,
+}
+
+impl CorrectionCounts {
+    /// Counts one scan's report.
+    pub fn add(&mut self, c: &ogm_core::wire::CorrectionReport) {
+        use ogm_core::wire::MatchVerdict;
+        match c.verdict {
+            MatchVerdict::Off => self.off += 1,
+            v if v.corrected() => self.corrected += 1,
+            _ => self.cannot_tell += 1,
+        }
+        self.without_odometry += u64::from(c.without_odometry);
+    }
+}
+
 /// Everything the listener counts (written to `status.json`).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct ListenStats {
@@ -53,6 +80,8 @@ pub struct ListenStats {
     pub tiles_sent_back: u64,
     /// Regions the robot came back to: tiles restored, merged, unsure (the map's count).
     pub revisits: Option<crate::stream::Revisits>,
+    /// What the robot's pose correction did with the scans reported (wire v7).
+    pub corrections: CorrectionCounts,
     /// Scan ranges of the wrong size (dropped).
     pub bad_ranges: u64,
     /// Scans whose ranges were placed at their report's pose (recorded, shown live).
@@ -158,5 +187,42 @@ impl fmt::Display for Notice {
             ),
             Notice::Warning(w) => write!(f, "warning: {w}"),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ogm_core::wire::{CorrectionReport, MatchVerdict};
+    use ogm_core::Angle;
+
+    #[test]
+    fn corrections_are_counted_by_what_the_matcher_decided() {
+        let mut c = CorrectionCounts::default();
+        let report = |verdict, without_odometry| CorrectionReport {
+            verdict,
+            without_odometry,
+            ..CorrectionReport::default()
+        };
+        c.add(&report(MatchVerdict::Off, false));
+        c.add(&report(MatchVerdict::Trusted, false));
+        c.add(&report(
+            MatchVerdict::Ambiguous {
+                weak_axis: Angle(0),
+            },
+            true,
+        ));
+        c.add(&report(MatchVerdict::AmbiguousRotation, false));
+        c.add(&report(MatchVerdict::NoOverlap, true));
+        c.add(&report(MatchVerdict::OutOfWindow, false));
+        assert_eq!(
+            c,
+            CorrectionCounts {
+                off: 1,
+                corrected: 3,
+                cannot_tell: 2,
+                without_odometry: 2,
+            }
+        );
     }
 }
