@@ -2,14 +2,14 @@
 //! cell for cell ([`compare`]), and with a noisy link, the replay of only what survived
 //! ([`noise_report`]).
 
-use anyhow::{anyhow, ensure, Context};
+use anyhow::{ensure, Context};
 use ogm_core::wire::Counters;
-use ogm_field::stream::{DeviceEvent, StreamDecoder, StreamedMap};
+use ogm_field::stream::StreamedMap;
 use ogm_firmware::sizes::MPS2_AN386 as FW;
 
 use super::groups::Groups;
 use super::input::{RunInput, Unit, UnitKind};
-use super::replay::{replay, sizes_of, FIRMWARE_SIZES};
+use super::replay::{decode_own, replay, sizes_of, FIRMWARE_SIZES};
 use super::report::NoiseReport;
 
 /// Collects mismatches (bounded) and counts checks.
@@ -82,13 +82,7 @@ pub(super) fn compare(
     )?;
     let (config, host_lo, host_counts, host_sample) =
         state.context("the replay never got a valid Config")?;
-    let mut decoder = StreamDecoder::new();
-    let events: Vec<DeviceEvent> = decoder
-        .push(&stream)
-        .into_iter()
-        .collect::<Result<_, _>>()
-        .map_err(|e| anyhow!("the host's own stream does not decode: {e}"))?;
-    let host = Groups::of(&events);
+    let host = Groups::of(&decode_own(&stream)?);
     c.eq(|| "configured".into(), &g.configured, &host.configured);
     c.eq(|| "configured".into(), &g.configured, &Some(config));
     c.eq(|| "scans".into(), &g.scans.len(), &host.scans.len());

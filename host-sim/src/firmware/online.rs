@@ -13,7 +13,7 @@
 
 use std::time::Duration;
 
-use anyhow::{anyhow, Context};
+use anyhow::Context;
 use ogm_core::config::RunConfig;
 use ogm_core::lidar::ld06::Ld06Parser;
 use ogm_core::wire::HostMsg;
@@ -24,7 +24,7 @@ use super::compare::{compare, Checker};
 use super::groups::{decode_captured, Groups};
 use super::input::scan_packets;
 use super::qemu::{build_elf, build_elf_with, repo_root, run_qemu_paced, Paced, QemuRun, Step};
-use super::replay::{replay, HostMemory, HostPlatform, FIRMWARE_SIZES};
+use super::replay::{replay_fixed, HostMemory, HostPlatform, FIRMWARE_SIZES};
 use super::report::{figures, FirmwareReport};
 use super::robot::{Line, RobotInput};
 use super::run::robot_report;
@@ -292,19 +292,7 @@ pub(super) fn run_input_online(
         let sent = host_link(&link, &input.lidar, &steps, &mut host, n);
         // The stream is the plain replay's of the link as sent (the paced run above only
         // placed the answers).
-        let stream = replay::<u8, _>(
-            &sent,
-            &input.lidar,
-            FIRMWARE_SIZES,
-            |_| Some(n),
-            |_, _| {},
-            |_, out| out.to_vec(),
-        )?;
-        let events: Vec<DeviceEvent> = StreamDecoder::new()
-            .push(&stream)
-            .into_iter()
-            .collect::<Result<_, _>>()
-            .map_err(|e| anyhow!("the host's own stream does not decode: {e}"))?;
+        let (stream, events) = replay_fixed(&sent, &input.lidar, n)?;
         let groups = Groups::of(&events);
         let r = robot_report(config, input, &sent, &groups, &events);
         return Ok((r, stream, sent));
@@ -371,7 +359,7 @@ pub(super) fn run_input_online(
 mod tests {
     use ogm_core::config::Budget;
     use ogm_core::session::{Owned, Session, Sizes};
-    use ogm_field::stream::{BuildingMap, DeviceEvent, StreamDecoder};
+    use ogm_field::stream::{BuildingMap, DeviceEvent};
 
     use super::super::log::{firmware_scan, log_config, log_input, mount_heading};
     use super::*;
@@ -409,20 +397,7 @@ mod tests {
                 restore,
                 "answers only with restore"
             );
-            let stream = replay::<u8, _>(
-                &sent,
-                &input.lidar,
-                FIRMWARE_SIZES,
-                |_| Some(20),
-                |_, _| {},
-                |_, out| out.to_vec(),
-            )
-            .unwrap();
-            let events: Vec<DeviceEvent> = StreamDecoder::new()
-                .push(&stream)
-                .into_iter()
-                .collect::<Result<_, _>>()
-                .unwrap();
+            let (_, events) = replay_fixed(&sent, &input.lidar, 20).unwrap();
             let mut b = BuildingMap::new(256, 256, 16);
             let mut last = None;
             for e in &events {

@@ -64,6 +64,34 @@ pub(super) fn replay<N: Count, R>(
     Ok(end(app.session(), &out))
 }
 
+/// The firmware's application on the host with a fixed `updates` sampler updates per scan and
+/// idle period (`--host-only`): what it streamed, and that stream decoded.
+pub(super) fn replay_fixed(
+    input: &[u8],
+    lidar: &[u8],
+    updates: u32,
+) -> anyhow::Result<(Vec<u8>, Vec<DeviceEvent>)> {
+    let stream = replay::<u8, _>(
+        input,
+        lidar,
+        FIRMWARE_SIZES,
+        |_| Some(updates),
+        |_, _| {},
+        |_, out| out.to_vec(),
+    )?;
+    let events = decode_own(&stream)?;
+    Ok((stream, events))
+}
+
+/// A stream the host's replay made, decoded (every frame must decode: the host made it).
+pub(super) fn decode_own(stream: &[u8]) -> anyhow::Result<Vec<DeviceEvent>> {
+    ogm_field::stream::StreamDecoder::new()
+        .push(stream)
+        .into_iter()
+        .collect::<Result<_, _>>()
+        .map_err(|e| anyhow::anyhow!("the host's own stream does not decode: {e}"))
+}
+
 /// The map the firmware's application ends with on `input` (its `Config`, scans, idle periods),
 /// with the sampler work the firmware reported in `events` (its decoded stream, which must
 /// hold its `Hello`): the host replay as a [`StreamedMap`], and its final sampler report.

@@ -3,10 +3,10 @@
 
 use std::time::Duration;
 
-use anyhow::{anyhow, bail, ensure, Context};
+use anyhow::{bail, ensure, Context};
 use ogm_core::config::{LidarModel, RunConfig};
 use ogm_core::wire::ScanReport;
-use ogm_field::stream::{decode_file, DeviceEvent, StreamDecoder};
+use ogm_field::stream::{decode_file, DeviceEvent};
 use ogm_firmware::sizes::MPS2_AN386 as FW;
 
 use super::accuracy::{accuracy, Online};
@@ -19,7 +19,7 @@ use super::qemu::{
     build_elf, build_elf_with, check_elf, repo_root, run_qemu, toolchain_missing, LidarLine,
     QemuRun,
 };
-use super::replay::{replay, FIRMWARE_SIZES};
+use super::replay::replay_fixed;
 use super::report::{figures, print_report, AnytimePoint, FirmwareReport, RobotReport};
 use super::setup::{firmware_world, idle_periods_us, run_config, sim_config};
 use crate::sim::simulate;
@@ -327,19 +327,7 @@ pub(super) fn run_input(
         // The firmware's application on the host, on the same two byte streams, with a fixed
         // number of sampler updates per turn.
         let n = args.fixed_updates.unwrap_or(0);
-        let stream = replay::<u8, _>(
-            &link,
-            &input.lidar,
-            FIRMWARE_SIZES,
-            |_| Some(n),
-            |_, _| {},
-            |_, out| out.to_vec(),
-        )?;
-        let events: Vec<DeviceEvent> = StreamDecoder::new()
-            .push(&stream)
-            .into_iter()
-            .collect::<Result<_, _>>()
-            .map_err(|e| anyhow!("the host's own stream does not decode: {e}"))?;
+        let (stream, events) = replay_fixed(&link, &input.lidar, n)?;
         let groups = Groups::of(&events);
         return Ok((robot_report(config, input, &link, &groups, &events), stream));
     }
