@@ -232,13 +232,24 @@ pub fn run(args: &EvalLogArgs) -> anyhow::Result<()> {
     let table = results_table(&reports);
     println!("\n{table}");
     if logs.len() > 1 {
-        std::fs::write(args.out.join("summary.md"), &table)
-            .with_context(|| format!("writing {}", args.out.join("summary.md").display()))?;
-        let json = serde_json::to_string_pretty(&reports)?;
-        std::fs::write(args.out.join("summary.json"), json + "\n")
-            .with_context(|| format!("writing {}", args.out.join("summary.json").display()))?;
-        println!("wrote {}", args.out.join("summary.md").display());
+        write_summary(&args.out, &table, &reports)?;
     }
+    Ok(())
+}
+
+/// `OUT/summary.md` (the table) and `OUT/summary.json` (every log's report) of a run over
+/// several logs.
+pub(crate) fn write_summary(
+    out: &Path,
+    table: &str,
+    reports: &impl serde::Serialize,
+) -> anyhow::Result<()> {
+    std::fs::write(out.join("summary.md"), table)
+        .with_context(|| format!("writing {}", out.join("summary.md").display()))?;
+    let json = serde_json::to_string_pretty(reports)?;
+    std::fs::write(out.join("summary.json"), json + "\n")
+        .with_context(|| format!("writing {}", out.join("summary.json").display()))?;
+    println!("wrote {}", out.join("summary.md").display());
     Ok(())
 }
 

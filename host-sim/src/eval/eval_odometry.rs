@@ -80,12 +80,7 @@ pub fn run(args: &EvalLogArgs) -> anyhow::Result<()> {
     let table = crate::eval::odometry_report::tables(&reports);
     println!("\n{table}");
     if logs.len() > 1 {
-        std::fs::write(args.out.join("summary.md"), &table)
-            .with_context(|| format!("writing {}", args.out.join("summary.md").display()))?;
-        let json = serde_json::to_string_pretty(&reports)?;
-        std::fs::write(args.out.join("summary.json"), json + "\n")
-            .with_context(|| format!("writing {}", args.out.join("summary.json").display()))?;
-        println!("wrote {}", args.out.join("summary.md").display());
+        crate::eval::eval_log::write_summary(&args.out, &table, &reports)?;
     }
     Ok(())
 }
