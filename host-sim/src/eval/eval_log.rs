@@ -52,7 +52,7 @@ pub use crate::eval::log_setup::{
     DEFAULT_RANGE_CAP_M, MARGIN_M, NEAR_MAPPED_CELLS,
 };
 
-use crate::eval::log_maps::{benchmark, map_experiment, ExperimentMaps};
+use crate::eval::log_maps::{benchmark, map_experiment, sensor_noise, ExperimentMaps};
 use crate::eval::metrics::{mask_within, Summary};
 use crate::eval::render;
 
@@ -196,6 +196,10 @@ pub struct LogReport {
     pub mapping_range_cells: f64,
     /// The benchmark.
     pub benchmark: BenchmarkInfo,
+    /// The sensor's noise over all the log's scans (perturbed as the experiments read them),
+    /// which the experiments' σ comes from; `None` with `--sigma-cells` or too few hits.
+    #[serde(default)]
+    pub sensor: Option<crate::eval::noise::NoiseEstimate>,
     /// The experiments run.
     pub experiments: Vec<ExperimentReport>,
 }
@@ -306,13 +310,22 @@ fn eval_one(
     } else {
         (None, None)
     };
+    // The sensor's σ from every scan it produced (as the experiments read them); each
+    // experiment's own data says how much of it supports a surface.
+    let all = perturbed.as_deref().unwrap_or(&setup.scans);
+    let sensor = if cfg.estimate_sigma {
+        sensor_noise(&setup, all)?
+    } else {
+        None
+    };
     let mut exps = Vec::new();
     for &id in experiments {
         let e = Experiment::new(id)?;
-        let scans = e.select(perturbed.as_deref().unwrap_or(&setup.scans));
+        let scans = e.select(all);
         let em = map_experiment(
             &setup,
             &scans,
+            sensor.as_ref(),
             methods,
             cfg,
             &format!("{} experiment {id}", setup.name),
@@ -387,6 +400,7 @@ fn eval_one(
         mapping_range_m: f64::from(setup.mapper.max_range_mm) / 1000.0,
         mapping_range_cells: f64::from(setup.mapper.max_range_mm) / f64::from(g.cell_mm()),
         benchmark,
+        sensor,
         experiments: exps,
     };
     let json = serde_json::to_string_pretty(&r)?;

@@ -27,7 +27,9 @@ use ogm_core::localize::odometry::OdometryModel;
 use ogm_core::Pose;
 
 use crate::eval::eval_log::EvalLogArgs;
-use crate::eval::log_maps::{benchmark, map_experiment, parse_methods, LogMethod, MethodsConfig};
+use crate::eval::log_maps::{
+    benchmark, map_experiment, parse_methods, sensor_noise, LogMethod, MethodsConfig,
+};
 use crate::eval::log_setup::{
     collect_logs, log_geometry, log_name, setup_log, Experiment, LogSetup, MARGIN_M,
 };
@@ -159,12 +161,19 @@ fn eval_log_odometry(
     let truth: Vec<Pose> = setup.scans.iter().map(|s| s.pose).collect();
     let maps_at = |poses: &[Pose], label: &str| -> anyhow::Result<Vec<ExperimentF1>> {
         let scans = with_poses(&setup.scans, poses)?;
+        // σ from all the scans at these poses, as eval-log takes it.
+        let sensor = if cfg.estimate_sigma {
+            sensor_noise(&setup, &scans)?
+        } else {
+            None
+        };
         let mut out = Vec::new();
         for &id in experiments {
             let sel = Experiment::new(id)?.select(&scans);
             let em = map_experiment(
                 &setup,
                 &sel,
+                sensor.as_ref(),
                 methods,
                 cfg,
                 &format!("{} {label} experiment {id}", setup.name),

@@ -84,12 +84,27 @@ impl ExperimentMaps {
     }
 }
 
+/// The sensor's noise estimated from `all`, every scan the sensor produced (e.g. a whole log,
+/// perturbed as the experiments read it), on `setup`'s grid: what [`map_experiment`] takes σ from.
+/// `None` if too few hits have an occupied cell near them.
+pub fn sensor_noise(setup: &LogSetup, all: &[ScanRecord]) -> anyhow::Result<Option<NoiseEstimate>> {
+    let map = map_scans(setup.geometry, setup.mapper, all)?.map;
+    Ok(crate::eval::noise::estimate(
+        &setup.geometry,
+        &setup.mapper,
+        all,
+        &map,
+    ))
+}
+
 /// Maps `scans` (an experiment's selection) on `setup`'s grid traditionally and by each of
-/// `methods`, with σ and the sensor estimated from the scans unless `cfg` fixes σ. `label`
-/// prefixes the progress lines.
+/// `methods`, with σ and the sensor estimated unless `cfg` fixes σ: σ from `sensor` (the
+/// sensor's noise over all its scans, [`sensor_noise`]) if given, else from `scans`; the shares
+/// of hits that support no surface always from `scans`. `label` prefixes the progress lines.
 pub fn map_experiment(
     setup: &LogSetup,
     scans: &[ScanRecord],
+    sensor: Option<&NoiseEstimate>,
     methods: &[LogMethod],
     cfg: &MethodsConfig,
     label: &str,
@@ -105,8 +120,11 @@ pub fn map_experiment(
     seconds.insert("traditional".to_string(), t.seconds);
     let mut iterations = BTreeMap::new();
     let mut graph = None;
-    // The sensor's noise, from this experiment's own data.
-    let noise = crate::eval::noise::estimate(&g, &setup.mapper, scans, &t.map);
+    // The sensor's noise: σ from all its data if given, the shares from this experiment's.
+    let noise = match sensor {
+        Some(n) => crate::eval::noise::estimate_with_sensor(&g, &setup.mapper, scans, &t.map, n),
+        None => crate::eval::noise::estimate(&g, &setup.mapper, scans, &t.map),
+    };
     // The forward models read the MAD's σ; the robot's settings the mixture's σ and τ.
     let cfg = match (cfg.estimate_sigma, noise) {
         (true, Some(n)) => cfg
@@ -116,13 +134,17 @@ pub fn map_experiment(
     };
     if let Some(n) = noise {
         eprintln!(
-            "{label}: estimated range noise σ = {:.2} cells, {:.1} % outliers ({} hits); mixture σ {:.2}, ε {:.1} %, unmatched {:.1} %{}",
+            "{label}: estimated range noise σ = {:.2} cells, {:.1} % outliers ({} hits); mixture σ {:.2}, ε {:.1} %, unmatched {:.1} %{}{}",
             n.sigma_cells,
             100.0 * n.outlier_rate,
             n.hits,
             n.sigma_mixture,
             100.0 * n.outlier_mixture,
             100.0 * n.unmatched,
+            match n.sensor_hits {
+                0 => String::new(),
+                k => format!(" (σ from all the log's scans, {k} hits)"),
+            },
             if cfg.estimate_sigma { "" } else { " (not used: --sigma-cells)" }
         );
     }

@@ -50,6 +50,10 @@ pub struct NoiseEstimate {
     /// other scan saw that surface); `outlier_rate` counts them too.
     #[serde(default)]
     pub unmatched: f64,
+    /// Hits the sensor's σ was estimated from when it came from more scans than these
+    /// ([`estimate_with_sensor`]: all the log's); 0 when from these scans.
+    #[serde(default)]
+    pub sensor_hits: usize,
 }
 
 impl NoiseEstimate {
@@ -78,11 +82,22 @@ pub const MIN_SIGMA_CELLS: f64 = 0.25;
 /// ε = 0.1); returns `(σ, ε)`. The uniform term takes the outliers the MAD cannot ignore once
 /// they are many (its breakdown is 50 %), so σ stays the Gaussian's.
 pub fn mixture(residuals: &[f64], sigma0: f64, quant: f64) -> (f64, f64) {
+    let (var, eps) = fit(residuals, sigma0 * sigma0 + quant, quant, true);
+    ((var - quant).max(0.0).sqrt().max(0.05), eps)
+}
+
+/// The uniform share ε of the same mixture with σ held at `sigma` (μ and ε fitted).
+pub fn mixture_share(residuals: &[f64], sigma: f64, quant: f64) -> f64 {
+    fit(residuals, sigma * sigma + quant, quant, false).1
+}
+
+/// EM for the mixture from variance `var0` (fitted too if `fit_var`); returns `(variance, ε)`.
+fn fit(residuals: &[f64], var0: f64, quant: f64, fit_var: bool) -> (f64, f64) {
     let Some(&mid) = residuals.get(residuals.len() / 2) else {
-        return (sigma0, 0.0);
+        return (var0, 0.0);
     };
     let n = residuals.len() as f64;
-    let (mut mu, mut var, mut eps) = (mid, sigma0 * sigma0 + quant, 0.1f64);
+    let (mut mu, mut var, mut eps) = (mid, var0, 0.1f64);
     let u = 1.0 / (2.0 * WINDOW_CELLS);
     // The Gaussian's responsibility for residual `r`.
     let resp = |r: f64, mu: f64, var: f64, eps: f64| {
@@ -101,19 +116,26 @@ pub fn mixture(residuals: &[f64], sigma0: f64, quant: f64) -> (f64, f64) {
             break;
         }
         let mu1 = swr / sw;
-        let swr2: f64 = residuals
-            .iter()
-            .map(|&r| resp(r, mu, var, eps) * (r - mu1).powi(2))
-            .sum();
-        let var1 = (swr2 / sw).max(quant + 1e-4);
+        let var1 = if fit_var {
+            let swr2: f64 = residuals
+                .iter()
+                .map(|&r| resp(r, mu, var, eps) * (r - mu1).powi(2))
+                .sum();
+            (swr2 / sw).max(quant + 1e-4)
+        } else {
+            var
+        };
         let eps1 = (1.0 - sw / n).clamp(1e-4, 0.999);
-        let done = (var1 - var).abs() < 1e-6 && (eps1 - eps).abs() < 1e-6;
+        // With σ held, μ must settle too.
+        let done = (var1 - var).abs() < 1e-6
+            && (eps1 - eps).abs() < 1e-6
+            && (fit_var || (mu1 - mu).abs() < 1e-6);
         (mu, var, eps) = (mu1, var1, eps1);
         if done {
             break;
         }
     }
-    ((var - quant).max(0.0).sqrt().max(0.05), eps)
+    (var, eps)
 }
 
 /// The median of sorted absolute deviations that come in half-cell steps (the search's), read
@@ -146,6 +168,84 @@ pub fn estimate(
     scans: &[ScanRecord],
     map: &[LogOdds],
 ) -> Option<NoiseEstimate> {
+    let (residuals, missing) = residuals(g, mapper, scans, map);
+    if residuals.len() < 100 {
+        return None;
+    }
+    let median = residuals[residuals.len() / 2];
+    let mut dev: Vec<f64> = residuals.iter().map(|r| (r - median).abs()).collect();
+    dev.sort_by(f64::total_cmp);
+    let mad = grouped_median(&dev);
+    let sigma = ((1.4826 * mad).powi(2) - QUANT).max(0.0).sqrt().max(0.05);
+    let (sigma_mixture, outlier_mixture) = mixture(&residuals, sigma, QUANT);
+    Some(NoiseEstimate {
+        sigma_cells: sigma,
+        sigma_mixture,
+        ..shares(&residuals, missing, sigma, outlier_mixture)
+    })
+}
+
+/// The noise of `scans` (a selection, e.g. an experiment's every 10th scan) with the sensor's σ
+/// taken from `sensor`, an estimate over all the scans the sensor produced: σ is the sensor's,
+/// while how many hits support a surface (the unmatched share, the mixture's uniform share ε,
+/// refitted with σ held) is this selection's. A selection of a few dozen scans sees most walls
+/// once, and its own mixture fit then reads anything from a third to twice the sensor's σ (from
+/// 0.9 to 3.5 cells on three perturbations of one log with the same added noise), while the
+/// whole log's reads it within a few percent. `None` only if no hit was examined.
+pub fn estimate_with_sensor(
+    g: &GridGeometry,
+    mapper: &ogm_core::MapperConfig,
+    scans: &[ScanRecord],
+    map: &[LogOdds],
+    sensor: &NoiseEstimate,
+) -> Option<NoiseEstimate> {
+    let (residuals, missing) = residuals(g, mapper, scans, map);
+    if residuals.is_empty() && missing == 0 {
+        return None;
+    }
+    // Too few matched hits to fit ε: the sensor's.
+    let eps = if residuals.len() < 100 {
+        sensor.outlier_mixture
+    } else {
+        mixture_share(&residuals, sensor.sigma_mixture, QUANT)
+    };
+    Some(NoiseEstimate {
+        sigma_cells: sensor.sigma_cells,
+        sigma_mixture: sensor.sigma_mixture,
+        sensor_hits: sensor.hits,
+        ..shares(&residuals, missing, sensor.sigma_cells, eps)
+    })
+}
+
+/// The search quantises a residual to half a cell (uniform: variance 1/48), and a wall cell is
+/// one cell deep (uniform over it: 1/12).
+const QUANT: f64 = 1.0 / 48.0 + 1.0 / 12.0;
+
+/// The shares of an estimate (σ left 0): outliers by the 3σ rule, the mixture's `eps`, unmatched.
+fn shares(residuals: &[f64], missing: usize, sigma: f64, eps: f64) -> NoiseEstimate {
+    let median = residuals.get(residuals.len() / 2).copied().unwrap_or(0.0);
+    let far = residuals
+        .iter()
+        .filter(|r| (*r - median).abs() > 3.0 * sigma.max(0.5))
+        .count();
+    let n = (residuals.len() + missing).max(1);
+    NoiseEstimate {
+        outlier_rate: (far + missing) as f64 / n as f64,
+        hits: residuals.len() + missing,
+        outlier_mixture: eps,
+        unmatched: missing as f64 / n as f64,
+        ..NoiseEstimate::default()
+    }
+}
+
+/// The residuals (sorted) of a sample of at most [`MAX_HITS`] hits of `scans`, and how many
+/// sampled hits had no occupied cell in the window.
+fn residuals(
+    g: &GridGeometry,
+    mapper: &ogm_core::MapperConfig,
+    scans: &[ScanRecord],
+    map: &[LogOdds],
+) -> (Vec<f64>, usize) {
     let occ_increment = i32::from(mapper.model.occ_increment().raw());
     let cell = f64::from(g.cell_mm());
     let hits_total: usize = scans
@@ -174,32 +274,8 @@ pub fn estimate(
             }
         }
     }
-    if residuals.len() < 100 {
-        return None;
-    }
     residuals.sort_by(f64::total_cmp);
-    let median = residuals[residuals.len() / 2];
-    let mut dev: Vec<f64> = residuals.iter().map(|r| (r - median).abs()).collect();
-    dev.sort_by(f64::total_cmp);
-    let mad = grouped_median(&dev);
-    // The search quantises a residual to half a cell (uniform: variance 1/48), and a wall cell
-    // is one cell deep (uniform over it: 1/12).
-    let quant = 1.0 / 48.0 + 1.0 / 12.0;
-    let sigma = ((1.4826 * mad).powi(2) - quant).max(0.0).sqrt().max(0.05);
-    let far = residuals
-        .iter()
-        .filter(|r| (*r - median).abs() > 3.0 * sigma.max(0.5))
-        .count();
-    let n = residuals.len() + missing;
-    let (sigma_mixture, outlier_mixture) = mixture(&residuals, sigma, quant);
-    Some(NoiseEstimate {
-        sigma_cells: sigma,
-        outlier_rate: (far + missing) as f64 / n as f64,
-        hits: n,
-        sigma_mixture,
-        outlier_mixture,
-        unmatched: missing as f64 / n as f64,
-    })
+    (residuals, missing)
 }
 
 /// Measured range (cells) minus the distance of the most occupied cell within the window.

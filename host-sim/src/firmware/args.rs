@@ -122,7 +122,8 @@ pub struct FirmwareArgs {
     /// visited again starts unknown on the robot; the host merges the visits' log-odds).
     #[arg(long)]
     pub no_restore: bool,
-    /// With `--log`: map only up to this range, mm (0: the log's own). The window's map equals
+    /// With `--log`: map only up to this range, mm, as `eval-log --range-cap` does: the robot
+    /// and the benchmark it is scored against both (0: eval-log's default). The window's map equals
     /// an unbounded one only while the margin is at least the mapper's reach
     /// (`Session::window_reach_cells`: the range and the face band, in cells, plus one).
     #[arg(long, default_value_t = 0)]
