@@ -8,9 +8,9 @@
 //! (`RunConfig::window_margin_cells`) and the host stitches the building from the stream
 //! (`ogm_field::stream::BuildingMap`); without it the robot maps the grid around its start.
 //! Every figure is over the cells the stitched stream covers, against the benchmark made from
-//! all of the log's scans (the `coverage` says how much of the benchmark's mapped cells that
-//! is). Rays beyond the window are clipped by the robot's mapper (counted in its `Window`
-//! reports).
+//! all of the log's scans at the same mapping range (`--range-cap`, as `eval-log --range-cap`;
+//! the `coverage` says how much of the benchmark's mapped cells that is). Rays beyond the window
+//! are clipped by the robot's mapper (counted in its `Window` reports).
 //!
 //! `DIR/map.yaml` (+ `.pgm`, `.png`: map_server conventions, unknown cells unknown) is the
 //! robot's sampler map as `export --stream` makes it from the captured stream, `DIR/map-log-odds.yaml`
@@ -38,6 +38,7 @@ use crate::eval::eval_log::{
     benchmark_truth, map_scans, setup_log, Experiment, LogMapArgs, BENCHMARK_THRESHOLD,
     NEAR_MAPPED_CELLS,
 };
+use crate::eval::log_maps::sensor_noise;
 use crate::eval::metrics::{mask_within, PrAccumulator, Summary};
 use crate::sim::probabilities;
 
@@ -89,7 +90,15 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         .out
         .as_ref()
         .context("--log needs --out DIR (the map and the report go there)")?;
-    let setup = setup_log(path, &LogMapArgs::default())?;
+    // The cap is the protocol's: the benchmark, eval-log's maps and the robot all map up to it.
+    let map_args = match args.range_cap {
+        0 => LogMapArgs::default(),
+        cap => LogMapArgs {
+            range_cap: f64::from(cap) / 1000.0,
+            ..LogMapArgs::default()
+        },
+    };
+    let setup = setup_log(path, &map_args)?;
     let exp = Experiment::new(experiment)?;
     let mut scans = exp.select(&setup.scans);
     if let Some(n) = args.max_scans {
@@ -120,14 +129,19 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
             max_updates: args.max_updates,
         },
     };
-    // The robot's settings made for this log's sensor, as eval-log's robot mode makes them
-    // (σ and τ estimated from the experiment's own data), on the robot's grid.
-    let sensor = crate::eval::noise::estimate(
-        &g,
-        &setup.mapper,
-        &scans,
-        &map_scans(g, setup.mapper, &scans)?.map,
-    )
+    // The robot's settings made for this log's sensor, as eval-log's robot mode makes them (σ
+    // from all the log's scans, the shares of unsupported hits from the experiment's), on the
+    // robot's grid.
+    let sensor = match sensor_noise(&setup, &setup.scans)? {
+        Some(all) => crate::eval::noise::estimate_with_sensor(
+            &g,
+            &setup.mapper,
+            &scans,
+            &map_scans(g, setup.mapper, &scans)?.map,
+            &all,
+        ),
+        None => None,
+    }
     .map(|n| n.sensor());
     let robot = match sensor {
         Some((sigma, tau)) => RunConfig::ROBOT.with_sensor(sigma, tau)?,
@@ -141,10 +155,7 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
     );
     let base = robot
         .with_origin_mm(ox, oy)
-        .with_max_range_mm(match args.range_cap {
-            0 => setup.mapper.max_range_mm,
-            cap => setup.mapper.max_range_mm.min(cap),
-        })
+        .with_max_range_mm(setup.mapper.max_range_mm)
         .with_seed(args.seed)
         .with_budget(budget);
     let config = log_config(
@@ -225,13 +236,18 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
     let probs = |layer| stream_probabilities(&render.map, &render.have_counts, one, layer);
     let (w, h) = (render.map.width, render.map.height);
     let at = (off.0 + render.x0, off.1 + render.y0);
-    let (near_mapped, coverage) = score(
-        &setup,
-        &probs(MapLayer::LogOdds),
-        &probs(MapLayer::Marginals),
-        (w, h),
-        at,
-    )?;
+    // The sampler's map is scored as eval-log scores its samplers: its estimate in every cell
+    // the robot streamed one for, including cells no ray reached (the prior's inference).
+    let estimates: Vec<f64> = (0..w * h)
+        .map(|i| match render.have_counts.get(i) {
+            Some(true) => {
+                let c = render.map.counts.get(i).copied().unwrap_or(0);
+                (f64::from(c) / f64::from(one.max(1))).min(1.0)
+            }
+            _ => 0.5,
+        })
+        .collect();
+    let (near_mapped, coverage) = score(&setup, &probs(MapLayer::LogOdds), &estimates, (w, h), at)?;
     let report = LogRunReport {
         log: path.display().to_string(),
         experiment,
