@@ -48,7 +48,7 @@ pub struct LogMapArgs {
     #[arg(long, default_value_t = 10)]
     pub burn_in: u32,
     /// Forward-model σ in cells, for the samplers and the baselines; default: estimated from
-    /// each experiment's own data (`crate::eval::noise`; the paper's simulation used 3).
+    /// all of the log's scans (`crate::eval::noise`; the paper's simulation used 3).
     #[arg(long)]
     pub sigma_cells: Option<f64>,
     /// Initial sample: a cell starts occupied iff its online log-odds exceeds this (raw LSB,
