@@ -392,6 +392,61 @@ mod tests {
         assert_eq!(mixture(&[], 0.7, 0.1), (0.7, 0.0));
     }
 
+    /// With σ held at the truth, the refit recovers the uniform share alone.
+    #[test]
+    fn mixture_share_fits_the_outliers_at_a_given_sigma() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal, Uniform};
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(9);
+        let normal = Normal::new(0.3, 1.5).unwrap();
+        let uniform = Uniform::new(-WINDOW_CELLS, WINDOW_CELLS).unwrap();
+        let mut r: Vec<f64> = (0..20_000)
+            .map(|k| {
+                if k % 10 < 6 {
+                    uniform.sample(&mut rng)
+                } else {
+                    normal.sample(&mut rng)
+                }
+            })
+            .collect();
+        r.sort_by(f64::total_cmp);
+        let eps = mixture_share(&r, 1.5, 0.0);
+        assert!((eps - 0.6).abs() < 0.02, "ε 0.6: {eps}");
+        // A σ far too small takes most of the Gaussian's hits for outliers.
+        assert!(mixture_share(&r, 0.3, 0.0) > 0.7);
+        assert_eq!(mixture_share(&[], 1.0, 0.1), 0.0);
+    }
+
+    /// A selection of a few scans takes σ from the sensor's estimate and its shares from itself.
+    #[test]
+    fn a_selection_takes_the_sensors_sigma() {
+        let world = crate::sim::generate::generate(
+            &crate::sim::generate::GenParams {
+                width: 200,
+                height: 200,
+                ..Default::default()
+            },
+            3,
+        );
+        let mut cfg = SimConfig::default();
+        cfg.lidar.sigma_cells = 1.5;
+        let run = simulate(&world, &cfg, 3).unwrap();
+        let all = estimate(&run.geometry, &run.mapper_config, &run.scans, &run.map).unwrap();
+        let few: Vec<ScanRecord> = run.scans.iter().step_by(10).cloned().collect();
+        let map = crate::eval::log_setup::map_scans(run.geometry, run.mapper_config, &few)
+            .unwrap()
+            .map;
+        let e = estimate_with_sensor(&run.geometry, &run.mapper_config, &few, &map, &all).unwrap();
+        assert_eq!(
+            (e.sigma_cells, e.sigma_mixture, e.sensor_hits),
+            (all.sigma_cells, all.sigma_mixture, all.hits)
+        );
+        assert!(e.hits > 0 && e.hits < all.hits, "{e:?} {all:?}");
+        // Fewer scans corroborate each other less.
+        assert!(e.unmatched >= all.unmatched, "{e:?} {all:?}");
+        assert!((0.0..=1.0).contains(&e.outlier_mixture));
+    }
+
     /// The grouped median interpolates within the half-cell step that holds the middle value.
     #[test]
     fn grouped_median_is_not_quantised() {
