@@ -134,7 +134,7 @@ impl RunConfig {
     /// model, every shared log) they are mostly gaps between diverging beams in free space —
     /// on fhw, experiment 1, 11 949 of the 13 752 scored ones — and starting them occupied
     /// left the robot's sampler below its own log-odds map (0.720 against 0.732; started free
-    /// 0.799, eval-log's offline chain 0.837; docs/results.md, "Online sampler on the logs").
+    /// 0.799, eval-log's offline chain 0.837; docs/results.md, "Never-observed cells start free without a band").
     /// The rays and hybrid terms carve free space along every ray and keep the default.
     pub fn unknown_threshold(&self) -> LogOdds {
         if self.face_band || self.data != DataTerm::Evidence {
