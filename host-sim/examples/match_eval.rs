@@ -64,12 +64,23 @@ struct Args {
     /// Matcher settings, `name=value` (comma-separated): levels, radius, coarse_radius,
     /// coarse_thin, reg_q8, cauchy_q8, prior_rot, prior_trans_q8, iterations, max_range_mm,
     /// min_spacing_mm, budget_reads, min_drop_permille, min_overlap_permille,
-    /// max_contradicted_permille, turn_search, max_turn_deg, max_shift_mm, occupied, floor, free.
+    /// max_contradicted_permille, turn_search, min_turn_drop_permille, probe_mm,
+    /// hit_offset_mm, face_iterations, face_scale, face_gain_q8, face_reach_mm,
+    /// face_shifts, max_turn_deg, max_shift_mm, occupied, floor, free.
     #[arg(long, value_delimiter = ',')]
     set: Vec<String>,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Instead of the logs: `host-sim firmware`'s simulated runs of these seeds (a generated
+    /// building, the paper's robot, σ = 3 cells), their odometry `--odometry` drifted with the
+    /// run's seed, tracked with the robot's own settings (`RunConfig::match_config` of its face
+    /// band map; `--set` overrides them): the poses the firmware maps with.
+    #[arg(long, value_delimiter = ',')]
+    sim: Vec<u64>,
+    /// With `--sim`: one line per scan (pose error, verdict).
+    #[arg(long)]
+    per_scan: bool,
 }
 
 fn odometry_model(a: &Args) -> anyhow::Result<OdometryModel> {
@@ -95,7 +106,11 @@ fn odometry_model(a: &Args) -> anyhow::Result<OdometryModel> {
 
 /// The matcher's defaults with `--set name=value` applied.
 fn matcher_config(a: &Args) -> anyhow::Result<MatchConfig> {
-    let mut c = MatchConfig::default();
+    apply_settings(a, MatchConfig::default())
+}
+
+/// `c` with `--set name=value` applied.
+fn apply_settings(a: &Args, mut c: MatchConfig) -> anyhow::Result<MatchConfig> {
     for kv in &a.set {
         let Some((k, v)) = kv.split_once('=') else {
             bail!("--set `{kv}`: expected name=value");
@@ -119,6 +134,14 @@ fn matcher_config(a: &Args) -> anyhow::Result<MatchConfig> {
             "min_overlap_permille" => c.min_overlap_permille = n as u16,
             "max_contradicted_permille" => c.max_contradicted_permille = n as u16,
             "turn_search" => c.turn_search = n as u8,
+            "min_turn_drop_permille" => c.min_turn_drop_permille = n as u16,
+            "probe_mm" => c.probe_mm = n as u32,
+            "hit_offset_mm" => c.hit_offset_mm = n as u16,
+            "face_iterations" => c.face_iterations = n as u8,
+            "face_scale" => c.face_scale = LogOdds(n as i16),
+            "face_gain_q8" => c.face_gain_q8 = n as u16,
+            "face_reach_mm" => c.face_reach_mm = n as u16,
+            "face_shifts" => c.face_shifts = n as u8,
             "max_turn_deg" => c.max_turn = Angle::from_degrees(n),
             "max_shift_mm" => c.max_shift_mm = n as u32,
             "occupied" => c.occupied = LogOdds(n as i16),
@@ -148,6 +171,9 @@ struct Run {
 fn main() -> anyhow::Result<()> {
     let a = Args::parse();
     let model = odometry_model(&a)?;
+    if !a.sim.is_empty() {
+        return sim_runs(&a, model);
+    }
     let settings = TrackSettings {
         matcher: matcher_config(&a)?,
         matching: !a.no_match,
@@ -245,4 +271,265 @@ fn main() -> anyhow::Result<()> {
         std::fs::write(p, serde_json::to_string_pretty(&runs)?)?;
     }
     Ok(())
+}
+
+/// `--sim`: the firmware's simulated runs (`host-sim firmware --seed S --odometry-noise
+/// MODEL`), tracked as the robot tracks them; position and heading error of odometry and of
+/// the corrected poses against the truth.
+fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
+    use host_sim::sim::generate::{generate, GenParams};
+    use host_sim::sim::{simulate, SimConfig};
+    use ogm_core::config::RunConfig;
+    println!("| seed | scans | odometry mean/max m, ° | corrected mean/max m, ° | verdicts T/A/R/U/F/N/W/C | ms/scan |");
+    println!("|---|---|---|---|---|---|");
+    let mut sums = [0.0f64; 4];
+    for &seed in &a.sim {
+        let world = generate(
+            &GenParams {
+                width: 256,
+                height: 256,
+                ..GenParams::default()
+            },
+            seed,
+        );
+        let sim = simulate(&world, &SimConfig::default(), seed)?;
+        let truth: Vec<Pose> = sim.scans.iter().map(|s| s.pose).collect();
+        // As `host-sim firmware --odometry-noise` drifts it (integer poses, step by step).
+        let arg = host_sim::firmware::odometry::OdometryArg {
+            name: "",
+            model,
+            seed: None,
+        };
+        let scans = host_sim::firmware::odometry::with_odometry(&sim.scans, &arg, seed);
+        let odometry: Vec<Pose> = scans.iter().map(|s| s.pose).collect();
+        let range_mm = sim.mapper_config.max_range_mm;
+        let robot = RunConfig::ROBOT
+            .with_origin_mm(
+                (world.origin_m.0 * 1000.0).round() as i32,
+                (world.origin_m.1 * 1000.0).round() as i32,
+            )
+            .with_max_range_mm(range_mm);
+        let robot = RunConfig {
+            cell_mm: (world.resolution_m * 1000.0).round() as u32,
+            ..robot
+        };
+        let cfg = robot
+            .match_config()
+            .context("the robot's correction is off")?;
+        let settings = TrackSettings {
+            matcher: apply_settings(a, cfg)?,
+            matching: !a.no_match,
+            face_band: robot.face_band,
+        };
+        let g = robot.geometry(256, 256)?;
+        let t0 = std::time::Instant::now();
+        let t = track(&scans, g, range_mm, &settings)?;
+        let ms = t0.elapsed().as_secs_f64() * 1000.0 / scans.len().max(1) as f64;
+        let err = |poses: &[Pose]| -> (f64, f64, f64, f64) {
+            let (mut m, mut mx, mut h, mut hx) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+            for (p, q) in poses.iter().zip(&truth) {
+                let d = f64::from(p.x_mm - q.x_mm).hypot(f64::from(p.y_mm - q.y_mm)) / 1000.0;
+                let th = f64::from(p.heading.signed_diff(q.heading)).abs() * 360.0 / 65536.0;
+                (m, mx, h, hx) = (m + d, mx.max(d), h + th, hx.max(th));
+            }
+            let n = poses.len().max(1) as f64;
+            (m / n, mx, h / n, hx)
+        };
+        if a.per_scan {
+            per_scan(&scans, &truth, g, range_mm, &settings)?;
+        }
+        let (o, m) = (err(&odometry), err(&t.poses));
+        println!(
+            "| {seed} | {} | {:.2}/{:.2}, {:.1}/{:.1} | {:.3}/{:.3}, {:.2}/{:.2} | {} | {ms:.2} |",
+            scans.len(),
+            o.0,
+            o.1,
+            o.2,
+            o.3,
+            m.0,
+            m.1,
+            m.2,
+            m.3,
+            t.verdicts.short()
+        );
+        for (s, v) in sums.iter_mut().zip([m.0, m.1, m.2, m.3]) {
+            *s += v;
+        }
+    }
+    let n = a.sim.len() as f64;
+    println!(
+        "mean over seeds: corrected position error mean {:.3} max {:.3} m, heading mean {:.2} max {:.2}°",
+        sums[0] / n,
+        sums[1] / n,
+        sums[2] / n,
+        sums[3] / n
+    );
+    Ok(())
+}
+
+/// `--per-scan`: the tracking loop of [`track`] once more, printing per scan the verdict and
+/// the error of the prediction and of the corrected pose against the truth.
+fn per_scan(
+    scans: &[host_sim::sim::explore::ScanRecord],
+    truth: &[Pose],
+    g: ogm_core::GridGeometry,
+    range_mm: u32,
+    settings: &TrackSettings,
+) -> anyhow::Result<()> {
+    use ogm_core::localize::{MapView, Tracker};
+    use ogm_core::session::{Owned, Session, Sizes};
+    let mut session = Session::new(
+        host_sim::sim::track::robot_config(&g, range_mm, settings.face_band),
+        Owned::<u8>::buffers(&Sizes::grid(g.width(), g.height())),
+    )?;
+    let mut tracker: Box<Tracker<512>> = Box::new(Tracker::new(settings.matcher));
+    let e = |p: &Pose, q: &Pose| {
+        format!(
+            "{:5} {:5} mm {:6.2}°",
+            p.x_mm - q.x_mm,
+            p.y_mm - q.y_mm,
+            f64::from(p.heading.signed_diff(q.heading)) * 360.0 / 65536.0
+        )
+    };
+    // ORACLE=1: match against the map made at the true poses (what the matcher can do on a
+    // map without the drift it accumulates itself).
+    let oracle = std::env::var("ORACLE").is_ok();
+    let (mut pos, mut head) = (0.0f64, 0.0f64);
+    for (k, (s, t)) in scans.iter().zip(truth).enumerate() {
+        let map = MapView::new(session.log_odds(), session.geometry())?;
+        let c = tracker.update(&map, &s.pose, &s.beams);
+        let q = c.matched.map(|m| m.quality).unwrap_or_default();
+        println!(
+            "  scan {k:2}: predicted {} corrected {} {:?} overlap {} drops {}/{}/{}",
+            e(&c.predicted, t),
+            e(&c.pose, t),
+            c.verdict(),
+            q.overlap,
+            q.drop_weak,
+            q.drop_strong,
+            q.drop_turn
+        );
+        if std::env::var("LANDSCAPE").is_ok() && k > 0 {
+            landscape(&session, t, &s.beams);
+        }
+        pos += f64::from(c.pose.x_mm - t.x_mm).hypot(f64::from(c.pose.y_mm - t.y_mm));
+        head += f64::from(c.pose.heading.signed_diff(t.heading)).abs() * 360.0 / 65536.0;
+        session.insert(if oracle { t } else { &c.pose }, &s.beams)?;
+    }
+    let n = scans.len().max(1) as f64;
+    println!(
+        "  per-scan mean error {:.3} m {:.2}°",
+        pos / n / 1000.0,
+        head / n
+    );
+    Ok(())
+}
+
+/// Debug: the face score (f64) of the scan around the true pose.
+fn landscape<S: ogm_core::session::Storage>(
+    session: &ogm_core::session::Session<S>,
+    t: &Pose,
+    beams: &[ogm_core::Beam],
+) {
+    let g = session.geometry();
+    let cells = session.log_odds();
+    let reach: f64 = std::env::var("REACH")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(150.0);
+    let scale: f64 = std::env::var("SCALE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(2048.0);
+    let val = |x: f64, y: f64| -> f64 {
+        let (ox, oy) = g.origin_mm();
+        let i = ((x - f64::from(ox)) / f64::from(g.cell_mm())).floor();
+        let j = ((y - f64::from(oy)) / f64::from(g.cell_mm())).floor();
+        if i < 0.0 || j < 0.0 || i >= f64::from(g.width()) || j >= f64::from(g.height()) {
+            return 0.0;
+        }
+        let l = f64::from(cells[j as usize * usize::from(g.width()) + i as usize].0);
+        (l / scale).clamp(-1.0, 1.0)
+    };
+    let score = |dth: f64, dx: f64, dy: f64| -> f64 {
+        let th = f64::from(t.heading.0) * std::f64::consts::TAU / 65536.0 + dth;
+        let mut sum = 0.0;
+        for b in beams {
+            let ogm_core::Range::Hit(r) = b.range else {
+                continue;
+            };
+            let a = th + f64::from(b.angle.0) * std::f64::consts::TAU / 65536.0;
+            let (c, sn) = (a.cos(), a.sin());
+            let (x, y) = (
+                f64::from(t.x_mm) + dx + f64::from(r) * c,
+                f64::from(t.y_mm) + dy + f64::from(r) * sn,
+            );
+            sum += val(x + reach * c, y + reach * sn) - val(x - reach * c, y - reach * sn);
+        }
+        sum
+    };
+    let mut prof = String::from(
+        "    profile (mean value, 50 mm steps along the beam, count of hits with |l|>0):",
+    );
+    let th = f64::from(t.heading.0) * std::f64::consts::TAU / 65536.0;
+    for k in -8..=8 {
+        let (mut sum, mut cnt) = (0.0, 0);
+        for b in beams {
+            let ogm_core::Range::Hit(r) = b.range else {
+                continue;
+            };
+            let a = th + f64::from(b.angle.0) * std::f64::consts::TAU / 65536.0;
+            let d = f64::from(r) + f64::from(k) * 50.0;
+            let v = val(
+                f64::from(t.x_mm) + d * a.cos(),
+                f64::from(t.y_mm) + d * a.sin(),
+            );
+            sum += v;
+            cnt += usize::from(v != 0.0);
+        }
+        prof += &format!(" {:.2}/{}", sum / beams.len() as f64, cnt);
+    }
+    println!("{prof}");
+    if std::env::var("CROP").is_ok() {
+        let (ox, oy) = g.origin_mm();
+        let ci = (t.x_mm - ox) / g.cell_mm() as i32;
+        let cj = (t.y_mm - oy) / g.cell_mm() as i32;
+        for j in (cj - 20..cj + 20).rev() {
+            let mut row = String::new();
+            for i in ci - 50..ci + 50 {
+                let l = if i < 0 || j < 0 || i >= i32::from(g.width()) || j >= i32::from(g.height())
+                {
+                    0
+                } else {
+                    cells[j as usize * usize::from(g.width()) + i as usize].0
+                };
+                row.push(match l {
+                    i16::MIN..=-3000 => ' ',
+                    -2999..=-1000 => '.',
+                    -999..=-1 => ',',
+                    0 => '?',
+                    1..=999 => '-',
+                    1000..=2999 => '+',
+                    _ => '#',
+                });
+            }
+            println!("    |{row}|");
+        }
+    }
+    let mut line = String::from("    heading:");
+    for k in -4..=4 {
+        line += &format!(
+            " {:7.1}",
+            score(f64::from(k) * 0.9f64.to_radians(), 0.0, 0.0)
+        );
+    }
+    line += "   x:";
+    for k in -4..=4 {
+        line += &format!(" {:7.1}", score(0.0, f64::from(k) * 50.0, 0.0));
+    }
+    line += "   y:";
+    for k in -4..=4 {
+        line += &format!(" {:7.1}", score(0.0, 0.0, f64::from(k) * 50.0));
+    }
+    println!("{line}");
 }
