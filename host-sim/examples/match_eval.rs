@@ -78,6 +78,10 @@ struct Args {
     /// band map; `--set` overrides them): the poses the firmware maps with.
     #[arg(long, value_delimiter = ',')]
     sim: Vec<u64>,
+    /// With `--sim`: the robot scans while it drives (`host-sim firmware --moving`: 10 Hz, 456
+    /// beams, 0.4 m/s).
+    #[arg(long)]
+    moving: bool,
     /// With `--sim`: one line per scan (pose error, verdict).
     #[arg(long)]
     per_scan: bool,
@@ -292,7 +296,14 @@ fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
             },
             seed,
         );
-        let sim = simulate(&world, &SimConfig::default(), seed)?;
+        let mut sc = SimConfig::default();
+        if a.moving {
+            // As `host-sim firmware --moving` sets it up.
+            sc.explore = host_sim::sim::explore::ExploreConfig::moving(10.0, 0.4, 0);
+            sc.explore.max_stops = SimConfig::default().explore.max_stops * 25;
+            sc.lidar.beams = 456;
+        }
+        let sim = simulate(&world, &sc, seed)?;
         let truth: Vec<Pose> = sim.scans.iter().map(|s| s.pose).collect();
         // As `host-sim firmware --odometry-noise` drifts it (integer poses, step by step).
         let arg = host_sim::firmware::odometry::OdometryArg {
@@ -394,21 +405,24 @@ fn per_scan(
     // ORACLE=1: match against the map made at the true poses (what the matcher can do on a
     // map without the drift it accumulates itself).
     let oracle = std::env::var("ORACLE").is_ok();
+    let quiet = std::env::var("QUIET").is_ok();
     let (mut pos, mut head) = (0.0f64, 0.0f64);
     for (k, (s, t)) in scans.iter().zip(truth).enumerate() {
         let map = MapView::new(session.log_odds(), session.geometry())?;
         let c = tracker.update(&map, &s.pose, &s.beams);
         let q = c.matched.map(|m| m.quality).unwrap_or_default();
-        println!(
-            "  scan {k:2}: predicted {} corrected {} {:?} overlap {} drops {}/{}/{}",
-            e(&c.predicted, t),
-            e(&c.pose, t),
-            c.verdict(),
-            q.overlap,
-            q.drop_weak,
-            q.drop_strong,
-            q.drop_turn
-        );
+        if !quiet {
+            println!(
+                "  scan {k:2}: predicted {} corrected {} {:?} overlap {} drops {}/{}/{}",
+                e(&c.predicted, t),
+                e(&c.pose, t),
+                c.verdict(),
+                q.overlap,
+                q.drop_weak,
+                q.drop_strong,
+                q.drop_turn
+            );
+        }
         if std::env::var("LANDSCAPE").is_ok() && k > 0 {
             landscape(&session, t, &s.beams);
         }

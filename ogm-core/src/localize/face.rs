@@ -11,8 +11,8 @@
 use crate::localize::field::Field;
 use crate::localize::matcher::{Frame, Normal, State, J_LIM};
 
-/// The face field's value one (Q8): a cell at or beyond `±scale` log-odds is `±FACE_ONE`.
-pub(crate) const FACE_ONE: i32 = 256;
+/// Below this slope² (Q16 per cell²: 1/32 of the field per cell) a point has no face near.
+const MIN_SLOPE2: i64 = 64;
 
 /// The face field of a grid: log-odds scaled to `±FACE_ONE` (clamped) at `±scale`.
 #[derive(Clone, Copy, Debug)]
@@ -104,7 +104,7 @@ impl Frame<'_> {
         &self,
         s: &State,
         ff: &FaceField,
-        gain_q8: i32,
+        (gain_q8, cauchy_q8): (i32, i32),
         lever_k: u32,
     ) -> Normal {
         let (tx, ty, c, sn) = self.transform(s);
@@ -122,17 +122,32 @@ impl Frame<'_> {
             if i64::from(fx) * i64::from(rx) + i64::from(fy) * i64::from(ry) <= 0 {
                 continue;
             }
+            // Point-to-face: the face's normal n = g/|g| and the distance to it along n,
+            // d = f/|g| (the Newton step to the zero of the field), so that a point weighs the
+            // same whatever the slope of its wall; no square root: n nᵀ = g gᵀ/|g|².
+            let (gx, gy) = (i64::from(fx), i64::from(fy));
+            let g2 = gx * gx + gy * gy;
+            if g2 < MIN_SLOPE2 {
+                continue;
+            }
+            // 2^32 / |g|², |g|² in Q16: |g|² ≥ 64 so this is at most 2^26.
+            let inv = (1i64 << 32) / g2;
+            let f64_ = i64::from(f);
+            // d² in Q8 cells² (f² Q16 · inv >> 24).
+            let d2 = (f64_ * f64_ * inv) >> 24;
+            let c2 = i64::from(cauchy_q8.max(1));
+            let robust = (c2 << 8) / (c2 + d2); // Q8
             n.used += 1;
             let lim = J_LIM as i32;
             let jx = i64::from((-ry >> lever_k).clamp(-lim, lim));
             let jy = i64::from((rx >> lever_k).clamp(-lim, lim));
-            let (gx, gy) = (i64::from(fx), i64::from(fy));
-            // dφ column: the slope along the point's motion, Q8 (|g| ≤ 2^9, |j| ≤ 2^15).
+            // dφ column: the slope along the point's motion, Q8 (|gt| ≤ |g| · 2^7).
             let gt = (gx * jx + gy * jy) >> 8;
-            let r = -i64::from(f);
-            // Q8 · Q8 = Q16, × gain Q8 >> 8, << 12: Q28 (|gt| ≤ 2^16, gain ≤ 2^10: below 2^48 a
-            // point, 2^61 for 8192 points).
-            let w = |a: i64, b: i64| ((a * b * gain) >> 8) << 12;
+            let r = -f64_;
+            let wq = (gain * robust) >> 8; // Q8, ≤ 2^10
+                                           // a·b/|g|² in Q16 (≤ 2^46 >> 16: |gt|² / |g|² ≤ 2^14·2^16), × weight Q8 >> 8,
+                                           // << 12: Q28 (below 2^44 a point, 2^57 for 8192 points).
+            let w = |a: i64, b: i64| ((((a * b * inv) >> 16) * wq) >> 8) << 12;
             h00 += w(gx, gx);
             h01 += w(gx, gy);
             h02 += w(gx, gt);

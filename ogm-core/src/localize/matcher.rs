@@ -393,8 +393,13 @@ pub fn match_scan(
             reads += face_cost;
             out.work.passes = out.work.passes.saturating_add(1);
             out.work.finest_level = 0;
-            let ne = frame.face_pass(&s, &ff, i32::from(cfg.face_gain_q8), frame.lever);
-            out.quality.overlap = (u64::from(ne.used) * 1000 / n.max(1) as u64).min(1000) as u16;
+            let weights = (i32::from(cfg.face_gain_q8), i32::from(cfg.cauchy_q8));
+            let ne = frame.face_pass(&s, &ff, weights, frame.lever);
+            if out.work.passes == 1 {
+                // No NDT pass ran: the overlap is the face pass's.
+                out.quality.overlap =
+                    (u64::from(ne.used) * 1000 / n.max(1) as u64).min(1000) as u16;
+            }
             if ne.used == 0 {
                 break;
             }
