@@ -7,6 +7,15 @@
 //! Command (from the worktree root; `../shared/data/logs` must exist):
 //! `CARGO_BUILD_JOBS=1 cargo run --release -p host-sim --example match_eval -- --seeds 1,2,3`
 //! (`--json FILE` writes the figures, `--help` lists the settings).
+//!
+//! `--sim 1,2,3,4,5 --odometry issue39 [--moving]`: instead of the logs, `host-sim firmware`'s
+//! simulated runs (σ = 3 cells) tracked with the robot's own settings (`RunConfig::match_config`
+//! on its face-band map; `--set` overrides them), a second a run; the pose error of odometry and
+//! of the corrected poses. Statistically the firmware's runs, not bit-exact with them (the
+//! firmware gets the scans through the LD06 encoding). `--per-scan [--oracle] [--quiet]`: each
+//! scan's prediction and corrected pose; with `--oracle` every scan is matched against the map
+//! made at the true poses, which separates the matcher's own error from the drift it feeds back
+//! into its map.
 
 use std::path::PathBuf;
 
@@ -65,8 +74,7 @@ struct Args {
     /// coarse_thin, reg_q8, cauchy_q8, prior_rot, prior_trans_q8, iterations, max_range_mm,
     /// min_spacing_mm, budget_reads, min_drop_permille, min_overlap_permille,
     /// max_contradicted_permille, turn_search, min_turn_drop_permille, probe_mm,
-    /// hit_offset_mm, face_iterations, face_scale, face_gain_q8, face_reach_mm,
-    /// face_shifts, max_turn_deg, max_shift_mm, occupied, floor, free.
+    /// hit_offset_mm, max_turn_deg, max_shift_mm, occupied, floor, free.
     #[arg(long, value_delimiter = ',')]
     set: Vec<String>,
     /// Write the figures as JSON.
@@ -82,9 +90,18 @@ struct Args {
     /// beams, 0.4 m/s).
     #[arg(long)]
     moving: bool,
-    /// With `--sim`: one line per scan (pose error, verdict).
+    /// With `--sim`: the tracking loop once more, with the mean error per scan; each scan's
+    /// prediction and corrected pose against the truth, its verdict and quality unless
+    /// `--quiet`.
     #[arg(long)]
     per_scan: bool,
+    /// With `--per-scan`: match every scan against the map made at the true poses (what the
+    /// matcher does on a map free of the drift it accumulates itself).
+    #[arg(long)]
+    oracle: bool,
+    /// With `--per-scan`: only the mean error.
+    #[arg(long)]
+    quiet: bool,
 }
 
 fn odometry_model(a: &Args) -> anyhow::Result<OdometryModel> {
@@ -141,11 +158,6 @@ fn apply_settings(a: &Args, mut c: MatchConfig) -> anyhow::Result<MatchConfig> {
             "min_turn_drop_permille" => c.min_turn_drop_permille = n as u16,
             "probe_mm" => c.probe_mm = n as u32,
             "hit_offset_mm" => c.hit_offset_mm = n as u16,
-            "face_iterations" => c.face_iterations = n as u8,
-            "face_scale" => c.face_scale = LogOdds(n as i16),
-            "face_gain_q8" => c.face_gain_q8 = n as u16,
-            "face_reach_mm" => c.face_reach_mm = n as u16,
-            "face_shifts" => c.face_shifts = n as u8,
             "max_turn_deg" => c.max_turn = Angle::from_degrees(n),
             "max_shift_mm" => c.max_shift_mm = n as u32,
             "occupied" => c.occupied = LogOdds(n as i16),
@@ -277,9 +289,9 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `--sim`: the firmware's simulated runs (`host-sim firmware --seed S --odometry-noise
-/// MODEL`), tracked as the robot tracks them; position and heading error of odometry and of
-/// the corrected poses against the truth.
+/// `--sim`: the firmware's simulated runs (`host-sim firmware --seed S [--moving]
+/// --odometry-noise MODEL`), tracked as the robot tracks them; position and heading error of
+/// odometry and of the corrected poses against the truth.
 fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
     use host_sim::sim::generate::{generate, GenParams};
     use host_sim::sim::{simulate, SimConfig};
@@ -347,7 +359,7 @@ fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
             (m / n, mx, h / n, hx)
         };
         if a.per_scan {
-            per_scan(&scans, &truth, g, range_mm, &settings)?;
+            per_scan(&scans, &truth, g, range_mm, &settings, (a.oracle, a.quiet))?;
         }
         let (o, m) = (err(&odometry), err(&t.poses));
         println!(
@@ -386,6 +398,7 @@ fn per_scan(
     g: ogm_core::GridGeometry,
     range_mm: u32,
     settings: &TrackSettings,
+    (oracle, quiet): (bool, bool),
 ) -> anyhow::Result<()> {
     use ogm_core::localize::{MapView, Tracker};
     use ogm_core::session::{Owned, Session, Sizes};
@@ -394,6 +407,7 @@ fn per_scan(
         Owned::<u8>::buffers(&Sizes::grid(g.width(), g.height())),
     )?;
     let mut tracker: Box<Tracker<512>> = Box::new(Tracker::new(settings.matcher));
+    tracker.set_matching(settings.matching);
     let e = |p: &Pose, q: &Pose| {
         format!(
             "{:5} {:5} mm {:6.2}°",
@@ -402,10 +416,6 @@ fn per_scan(
             f64::from(p.heading.signed_diff(q.heading)) * 360.0 / 65536.0
         )
     };
-    // ORACLE=1: match against the map made at the true poses (what the matcher can do on a
-    // map without the drift it accumulates itself).
-    let oracle = std::env::var("ORACLE").is_ok();
-    let quiet = std::env::var("QUIET").is_ok();
     let (mut pos, mut head) = (0.0f64, 0.0f64);
     for (k, (s, t)) in scans.iter().zip(truth).enumerate() {
         let map = MapView::new(session.log_odds(), session.geometry())?;
@@ -423,9 +433,6 @@ fn per_scan(
                 q.drop_turn
             );
         }
-        if std::env::var("LANDSCAPE").is_ok() && k > 0 {
-            landscape(&session, t, &s.beams);
-        }
         pos += f64::from(c.pose.x_mm - t.x_mm).hypot(f64::from(c.pose.y_mm - t.y_mm));
         head += f64::from(c.pose.heading.signed_diff(t.heading)).abs() * 360.0 / 65536.0;
         session.insert(if oracle { t } else { &c.pose }, &s.beams)?;
@@ -437,113 +444,4 @@ fn per_scan(
         head / n
     );
     Ok(())
-}
-
-/// Debug: the face score (f64) of the scan around the true pose.
-fn landscape<S: ogm_core::session::Storage>(
-    session: &ogm_core::session::Session<S>,
-    t: &Pose,
-    beams: &[ogm_core::Beam],
-) {
-    let g = session.geometry();
-    let cells = session.log_odds();
-    let reach: f64 = std::env::var("REACH")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(150.0);
-    let scale: f64 = std::env::var("SCALE")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(2048.0);
-    let val = |x: f64, y: f64| -> f64 {
-        let (ox, oy) = g.origin_mm();
-        let i = ((x - f64::from(ox)) / f64::from(g.cell_mm())).floor();
-        let j = ((y - f64::from(oy)) / f64::from(g.cell_mm())).floor();
-        if i < 0.0 || j < 0.0 || i >= f64::from(g.width()) || j >= f64::from(g.height()) {
-            return 0.0;
-        }
-        let l = f64::from(cells[j as usize * usize::from(g.width()) + i as usize].0);
-        (l / scale).clamp(-1.0, 1.0)
-    };
-    let score = |dth: f64, dx: f64, dy: f64| -> f64 {
-        let th = f64::from(t.heading.0) * std::f64::consts::TAU / 65536.0 + dth;
-        let mut sum = 0.0;
-        for b in beams {
-            let ogm_core::Range::Hit(r) = b.range else {
-                continue;
-            };
-            let a = th + f64::from(b.angle.0) * std::f64::consts::TAU / 65536.0;
-            let (c, sn) = (a.cos(), a.sin());
-            let (x, y) = (
-                f64::from(t.x_mm) + dx + f64::from(r) * c,
-                f64::from(t.y_mm) + dy + f64::from(r) * sn,
-            );
-            sum += val(x + reach * c, y + reach * sn) - val(x - reach * c, y - reach * sn);
-        }
-        sum
-    };
-    let mut prof = String::from(
-        "    profile (mean value, 50 mm steps along the beam, count of hits with |l|>0):",
-    );
-    let th = f64::from(t.heading.0) * std::f64::consts::TAU / 65536.0;
-    for k in -8..=8 {
-        let (mut sum, mut cnt) = (0.0, 0);
-        for b in beams {
-            let ogm_core::Range::Hit(r) = b.range else {
-                continue;
-            };
-            let a = th + f64::from(b.angle.0) * std::f64::consts::TAU / 65536.0;
-            let d = f64::from(r) + f64::from(k) * 50.0;
-            let v = val(
-                f64::from(t.x_mm) + d * a.cos(),
-                f64::from(t.y_mm) + d * a.sin(),
-            );
-            sum += v;
-            cnt += usize::from(v != 0.0);
-        }
-        prof += &format!(" {:.2}/{}", sum / beams.len() as f64, cnt);
-    }
-    println!("{prof}");
-    if std::env::var("CROP").is_ok() {
-        let (ox, oy) = g.origin_mm();
-        let ci = (t.x_mm - ox) / g.cell_mm() as i32;
-        let cj = (t.y_mm - oy) / g.cell_mm() as i32;
-        for j in (cj - 20..cj + 20).rev() {
-            let mut row = String::new();
-            for i in ci - 50..ci + 50 {
-                let l = if i < 0 || j < 0 || i >= i32::from(g.width()) || j >= i32::from(g.height())
-                {
-                    0
-                } else {
-                    cells[j as usize * usize::from(g.width()) + i as usize].0
-                };
-                row.push(match l {
-                    i16::MIN..=-3000 => ' ',
-                    -2999..=-1000 => '.',
-                    -999..=-1 => ',',
-                    0 => '?',
-                    1..=999 => '-',
-                    1000..=2999 => '+',
-                    _ => '#',
-                });
-            }
-            println!("    |{row}|");
-        }
-    }
-    let mut line = String::from("    heading:");
-    for k in -4..=4 {
-        line += &format!(
-            " {:7.1}",
-            score(f64::from(k) * 0.9f64.to_radians(), 0.0, 0.0)
-        );
-    }
-    line += "   x:";
-    for k in -4..=4 {
-        line += &format!(" {:7.1}", score(0.0, f64::from(k) * 50.0, 0.0));
-    }
-    line += "   y:";
-    for k in -4..=4 {
-        line += &format!(" {:7.1}", score(0.0, 0.0, f64::from(k) * 50.0));
-    }
-    println!("{line}");
 }

@@ -262,7 +262,7 @@ impl<'a> Field<'a> {
 
     /// The raw log-odds of the cell containing the sub-cell position, `None` outside the grid.
     #[inline]
-    pub(crate) fn raw(&self, gx: i32, gy: i32) -> Option<i16> {
+    fn raw(&self, gx: i32, gy: i32) -> Option<i16> {
         let (i, j) = (gx >> 8, gy >> 8);
         if i < 0 || j < 0 || i >= self.w || j >= self.h {
             return None;

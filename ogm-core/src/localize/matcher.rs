@@ -5,7 +5,6 @@
 //! 1/256 angle unit. Working on the correction keeps the numbers small whatever the pose (the
 //! window bounds it), and the prior and the window are then tests on the state itself.
 
-use crate::localize::face::FaceField;
 use crate::localize::field::{Cell, Field, MapView, NearParams, Ramp, ONE};
 use crate::localize::points::ScanPoint;
 use crate::localize::solve::{eigen2, solve3};
@@ -33,7 +32,7 @@ const MAX_LEVER: u32 = 14;
 /// Rotation Jacobians (Q8 level cells at the lever) are clamped to this magnitude (points
 /// absurdly far for their lever): with inverse covariances below 2^14 (Q12) and at most
 /// [`MAX_POINTS`] points, every sum of the normal equations stays below 2⁶⁰.
-pub(crate) const J_LIM: i64 = 1 << 15;
+const J_LIM: i64 = 1 << 15;
 
 /// Whether a match can be trusted, and if not, why.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -154,25 +153,25 @@ impl MatchResult {
 
 /// The Gauss–Newton normal equations of one pass.
 #[derive(Clone, Copy, Debug, Default)]
-pub(crate) struct Normal {
-    pub(crate) h: [[i64; 3]; 3],
-    pub(crate) b: [i64; 3],
-    pub(crate) used: u32,
+struct Normal {
+    h: [[i64; 3]; 3],
+    b: [i64; 3],
+    used: u32,
 }
 
 /// The running correction.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub(crate) struct State {
-    pub(crate) dx: i32,
-    pub(crate) dy: i32,
+struct State {
+    dx: i32,
+    dy: i32,
     /// 1/256 angle unit.
-    pub(crate) dth: i32,
+    dth: i32,
 }
 
 /// Everything a pass needs that does not change during the match.
-pub(crate) struct Frame<'a> {
-    pub(crate) field: Field<'a>,
-    pub(crate) points: &'a [ScanPoint],
+struct Frame<'a> {
+    field: Field<'a>,
+    points: &'a [ScanPoint],
     /// The prediction in sub-cells of the grid.
     gx0: i32,
     gy0: i32,
@@ -190,7 +189,7 @@ impl Frame<'_> {
     }
 
     /// Position (sub-cells) and rotation (Q30) of a state.
-    pub(crate) fn transform(&self, s: &State) -> (i32, i32, i64, i64) {
+    fn transform(&self, s: &State) -> (i32, i32, i64, i64) {
         let (c, sn) = self.heading(s).cos_sin_q30();
         (
             self.gx0 + s.dx,
@@ -335,16 +334,8 @@ pub fn match_scan(
         cauchy: i32::from(cfg.cauchy_q8) << 4,
     };
     let mut s = State::default();
-    let face = FaceField::new(cfg.face_scale.0);
-    let reach = to_sub(i64::from(cfg.face_reach_mm)).clamp(1, 1 << 16) as i32;
     if cfg.search_reads(n) > 0 {
-        if cfg.face_iterations > 0 && cfg.face_shifts > 0 {
-            let turns = (i32::from(cfg.turn_search), turn_step(frame.lever), win_th);
-            let shifts = (i32::from(cfg.face_shifts), win);
-            s = frame.face_search(s, &face, reach, cfg.stride_at(1), turns, shifts);
-        } else {
-            s.dth = turn_search(&frame, cfg, win_th);
-        }
+        s.dth = turn_search(&frame, cfg, win_th);
     }
     let mut at_edge = false;
     let mut reads = cfg.search_reads(n);
@@ -353,16 +344,13 @@ pub fn match_scan(
     } else {
         u64::from(cfg.budget_reads)
     };
-    // Room kept for the face passes, which end the match.
-    let face_cost = cfg.face_reads(n);
-    let face_total = face_cost * u64::from(cfg.face_iterations);
     'levels: for level in (0..=cfg.levels.min(MAX_LEVEL)).rev() {
         let lever_k = frame.lever.saturating_sub(u32::from(level));
         let cost = cfg.pass_reads(level, n);
         np.radius = cfg.radius_at(level);
         // A coarse pass leaves room for one pass at the grid's level: a match the budget cuts
         // short still ends on the grid (the coarse levels only bring it into reach).
-        let reserve = if level > 0 { cfg.pass_reads(0, n) } else { 0 } + face_total;
+        let reserve = if level > 0 { cfg.pass_reads(0, n) } else { 0 };
         for _ in 0..cfg.iterations {
             if reads + cost + reserve > budget {
                 if level > 0 {
@@ -379,31 +367,24 @@ pub fn match_scan(
             if ne.used == 0 {
                 break;
             }
-            if !advance(&ne, &mut s, level, lever_k, cfg, win, win_th, &mut at_edge) {
+            let Some(step) = gn_step(&ne, &s, level, lever_k, cfg) else {
                 break;
-            }
-        }
-    }
-    if cfg.face_iterations > 0 {
-        let ff = face;
-        for _ in 0..cfg.face_iterations {
-            if reads + face_cost > budget {
-                break;
-            }
-            reads += face_cost;
-            out.work.passes = out.work.passes.saturating_add(1);
-            out.work.finest_level = 0;
-            let weights = (i32::from(cfg.face_gain_q8), i32::from(cfg.cauchy_q8));
-            let ne = frame.face_pass(&s, &ff, weights, frame.lever);
-            if out.work.passes == 1 {
-                // No NDT pass ran: the overlap is the face pass's.
-                out.quality.overlap =
-                    (u64::from(ne.used) * 1000 / n.max(1) as u64).min(1000) as u16;
-            }
-            if ne.used == 0 {
-                break;
-            }
-            if !advance(&ne, &mut s, 0, frame.lever, cfg, win, win_th, &mut at_edge) {
+            };
+            let k = u32::from(level);
+            let next = State {
+                dx: s.dx.saturating_add((step[0] as i32) << k),
+                dy: s.dy.saturating_add((step[1] as i32) << k),
+                dth: s.dth.saturating_add(dth_of_phi(step[2], lever_k) as i32),
+            };
+            let clamped = State {
+                dx: next.dx.clamp(-win, win),
+                dy: next.dy.clamp(-win, win),
+                dth: next.dth.clamp(-win_th, win_th),
+            };
+            at_edge = clamped != next;
+            s = clamped;
+            // Converged at this level: the step moved less than 1/16 of a level cell.
+            if step.iter().all(|v| v.abs() < i64::from(SUB) / 16) {
                 break;
             }
         }
@@ -502,40 +483,6 @@ pub(crate) fn heading_search(
         lever: lever_of(points),
     };
     turn_search(&frame, cfg, i32::from(cfg.max_turn.0.min(32767)) << 8)
-}
-
-/// One Gauss–Newton step from the normal equations `ne` at `level`, applied to `s` and kept
-/// inside the search window (`at_edge` says whether it had to be clamped); false when the
-/// level is done (no step could be solved, or it moved less than 1/16 of a level cell).
-#[allow(clippy::too_many_arguments)]
-fn advance(
-    ne: &Normal,
-    s: &mut State,
-    level: u8,
-    lever_k: u32,
-    cfg: &MatchConfig,
-    win: i32,
-    win_th: i32,
-    at_edge: &mut bool,
-) -> bool {
-    let Some(step) = gn_step(ne, s, level, lever_k, cfg) else {
-        return false;
-    };
-    let k = u32::from(level);
-    let next = State {
-        dx: s.dx.saturating_add((step[0] as i32) << k),
-        dy: s.dy.saturating_add((step[1] as i32) << k),
-        dth: s.dth.saturating_add(dth_of_phi(step[2], lever_k) as i32),
-    };
-    let clamped = State {
-        dx: next.dx.clamp(-win, win),
-        dy: next.dy.clamp(-win, win),
-        dth: next.dth.clamp(-win_th, win_th),
-    };
-    *at_edge = clamped != next;
-    *s = clamped;
-    // Converged at this level: the step moved less than 1/16 of a level cell.
-    !step.iter().all(|v| v.abs() < i64::from(SUB) / 16)
 }
 
 /// One regularised Gauss–Newton step in Q8 level cells (x, y, φ), each at most one level cell.

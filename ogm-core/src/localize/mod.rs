@@ -101,7 +101,6 @@
 //! outside the grid: no overlap), so no input panics or overflows. [`reference`] (feature
 //! `reference`) is the same algorithm in `f64`, which the tests compare against.
 
-mod face;
 pub mod field;
 pub mod matcher;
 pub mod odometry;
@@ -213,22 +212,6 @@ pub struct MatchConfig {
     /// Cell reads allowed per call for the heading search and the Gauss–Newton passes (see the
     /// module docs, "Work bound"); 0 = no limit.
     pub budget_reads: u32,
-    /// Gauss–Newton steps on the face field after the NDT passes (0: none): each point is put
-    /// on its wall's face, where the log-odds change sign (module docs, "Face refine"). For a
-    /// map whose walls are thick (a face band); its points are then the readings themselves
-    /// (`hit_offset_mm` 0).
-    pub face_iterations: u8,
-    /// Log-odds at which the face field saturates (±1); positive.
-    pub face_scale: LogOdds,
-    /// A point's information in the face passes per unit of the field's slope², Q8 (at most
-    /// 1024), against the prior's per-point information.
-    pub face_gain_q8: u16,
-    /// How far behind and in front of a point the face score looks ([`MatchConfig::face_iterations`]
-    /// > 0; about the range noise σ).
-    pub face_reach_mm: u16,
-    /// With the face refine: translations searched each side, whole cells, after the heading
-    /// search and before the face passes (0: none).
-    pub face_shifts: u8,
 }
 
 impl Default for MatchConfig {
@@ -261,11 +244,6 @@ impl Default for MatchConfig {
             min_drop_permille: 150,
             min_turn_drop_permille: 150,
             budget_reads: 50_000,
-            face_iterations: 0,
-            face_scale: LogOdds(2048),
-            face_gain_q8: 256,
-            face_reach_mm: 150,
-            face_shifts: 0,
         }
     }
 }
@@ -293,7 +271,6 @@ impl MatchConfig {
             || !(1..=field::MAX_RADIUS).contains(&self.radius)
             || !(1..=field::MAX_RADIUS).contains(&self.coarse_radius)
             || self.min_range_mm >= self.max_range_mm
-            || self.face_scale.0 <= 0
         {
             return Err(Error::InvalidModel);
         }
@@ -336,23 +313,12 @@ impl MatchConfig {
             return 0;
         }
         let n = n.min(MAX_POINTS);
-        let headings = 2 * u64::from(self.turn_search) + 1;
-        let reads = if self.face_iterations > 0 {
-            // The face search: two cells a point, the headings then the translations.
-            let side = 2 * u64::from(self.face_shifts) + 1;
-            (headings + side * side - 1) * 2 * n.div_ceil(self.stride_at(1)) as u64
-        } else {
-            headings * 4 * n.div_ceil(self.stride_at(1)) as u64
-        };
+        let reads =
+            (2 * u64::from(self.turn_search) + 1) * 4 * n.div_ceil(self.stride_at(1)) as u64;
         if self.budget_reads != 0 && reads > u64::from(self.budget_reads) {
             return 0;
         }
         reads
-    }
-
-    /// Cell reads of one face pass over `n` points (four cells a point).
-    pub fn face_reads(&self, n: usize) -> u64 {
-        4 * n.min(MAX_POINTS) as u64
     }
 
     /// Cell reads of the quality probes over `n` points (the score at the pose, four
@@ -368,8 +334,7 @@ impl MatchConfig {
         let passes: u64 = (0..=self.levels.min(MAX_LEVEL))
             .map(|k| u64::from(self.iterations) * self.pass_reads(k, n))
             .sum();
-        let faces = u64::from(self.face_iterations) * self.face_reads(n);
-        let mut work = passes + faces + self.search_reads(n);
+        let mut work = passes + self.search_reads(n);
         if self.budget_reads != 0 {
             work = work.min(u64::from(self.budget_reads));
         }
