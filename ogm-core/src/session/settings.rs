@@ -16,11 +16,7 @@ const MATCH_BUDGET_READS: u32 = 40_000;
 /// A face band's hit offset, in σ (Q8).
 const OFFSET_PER_SIGMA_Q8: u32 = 256;
 /// A face band's least overlap (‰): its thick walls let a wrong pose touch some of them.
-/// Measured on the firmware's simulated runs (σ = 3 cells, issue 39's odometry, online max F1,
-/// docs/firmware.md): 250 against 500 lifts the stop-and-scan runs (seeds 1–15, where each scan
-/// sees much the map has not) from a mean of 0.576 to 0.627 and leaves those scanning while
-/// driving (seeds 1–8) at 0.532 (0.527); 150–200 did the same, 300–350 lost seed 5.
-const MIN_OVERLAP_PERMILLE: u16 = 250;
+const MIN_OVERLAP_PERMILLE: u16 = 500;
 /// A face band's quality probe, in σ (Q8).
 const PROBE_PER_SIGMA_Q8: u32 = 256;
 /// A face band's priors are the defaults' divided by this. The defaults weigh the prediction
