@@ -7,6 +7,15 @@
 //! Command (from the worktree root; `../shared/data/logs` must exist):
 //! `CARGO_BUILD_JOBS=1 cargo run --release -p host-sim --example match_eval -- --seeds 1,2,3`
 //! (`--json FILE` writes the figures, `--help` lists the settings).
+//!
+//! `--sim 1,2,3,4,5 --odometry issue39 [--moving]`: instead of the logs, `host-sim firmware`'s
+//! simulated runs (σ = 3 cells) tracked with the robot's own settings (`RunConfig::match_config`
+//! on its face-band map; `--set` overrides them), a second a run; the pose error of odometry and
+//! of the corrected poses. Statistically the firmware's runs, not bit-exact with them (the
+//! firmware gets the scans through the LD06 encoding). `--per-scan [--oracle] [--quiet]`: each
+//! scan's prediction and corrected pose; with `--oracle` every scan is matched against the map
+//! made at the true poses, which separates the matcher's own error from the drift it feeds back
+//! into its map.
 
 use std::path::PathBuf;
 
@@ -64,12 +73,35 @@ struct Args {
     /// Matcher settings, `name=value` (comma-separated): levels, radius, coarse_radius,
     /// coarse_thin, reg_q8, cauchy_q8, prior_rot, prior_trans_q8, iterations, max_range_mm,
     /// min_spacing_mm, budget_reads, min_drop_permille, min_overlap_permille,
-    /// max_contradicted_permille, turn_search, max_turn_deg, max_shift_mm, occupied, floor, free.
+    /// max_contradicted_permille, turn_search, min_turn_drop_permille, probe_mm,
+    /// hit_offset_mm, max_turn_deg, max_shift_mm, occupied, floor, free.
     #[arg(long, value_delimiter = ',')]
     set: Vec<String>,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Instead of the logs: `host-sim firmware`'s simulated runs of these seeds (a generated
+    /// building, the paper's robot, σ = 3 cells), their odometry `--odometry` drifted with the
+    /// run's seed, tracked with the robot's own settings (`RunConfig::match_config` of its face
+    /// band map; `--set` overrides them): the poses the firmware maps with.
+    #[arg(long, value_delimiter = ',')]
+    sim: Vec<u64>,
+    /// With `--sim`: the robot scans while it drives (`host-sim firmware --moving`: 10 Hz, 456
+    /// beams, 0.4 m/s).
+    #[arg(long)]
+    moving: bool,
+    /// With `--sim`: the tracking loop once more, with the mean error per scan; each scan's
+    /// prediction and corrected pose against the truth, its verdict and quality unless
+    /// `--quiet`.
+    #[arg(long)]
+    per_scan: bool,
+    /// With `--per-scan`: match every scan against the map made at the true poses (what the
+    /// matcher does on a map free of the drift it accumulates itself).
+    #[arg(long)]
+    oracle: bool,
+    /// With `--per-scan`: only the mean error.
+    #[arg(long)]
+    quiet: bool,
 }
 
 fn odometry_model(a: &Args) -> anyhow::Result<OdometryModel> {
@@ -95,7 +127,11 @@ fn odometry_model(a: &Args) -> anyhow::Result<OdometryModel> {
 
 /// The matcher's defaults with `--set name=value` applied.
 fn matcher_config(a: &Args) -> anyhow::Result<MatchConfig> {
-    let mut c = MatchConfig::default();
+    apply_settings(a, MatchConfig::default())
+}
+
+/// `c` with `--set name=value` applied.
+fn apply_settings(a: &Args, mut c: MatchConfig) -> anyhow::Result<MatchConfig> {
     for kv in &a.set {
         let Some((k, v)) = kv.split_once('=') else {
             bail!("--set `{kv}`: expected name=value");
@@ -119,6 +155,9 @@ fn matcher_config(a: &Args) -> anyhow::Result<MatchConfig> {
             "min_overlap_permille" => c.min_overlap_permille = n as u16,
             "max_contradicted_permille" => c.max_contradicted_permille = n as u16,
             "turn_search" => c.turn_search = n as u8,
+            "min_turn_drop_permille" => c.min_turn_drop_permille = n as u16,
+            "probe_mm" => c.probe_mm = n as u32,
+            "hit_offset_mm" => c.hit_offset_mm = n as u16,
             "max_turn_deg" => c.max_turn = Angle::from_degrees(n),
             "max_shift_mm" => c.max_shift_mm = n as u32,
             "occupied" => c.occupied = LogOdds(n as i16),
@@ -148,6 +187,9 @@ struct Run {
 fn main() -> anyhow::Result<()> {
     let a = Args::parse();
     let model = odometry_model(&a)?;
+    if !a.sim.is_empty() {
+        return sim_runs(&a, model);
+    }
     let settings = TrackSettings {
         matcher: matcher_config(&a)?,
         matching: !a.no_match,
@@ -244,5 +286,162 @@ fn main() -> anyhow::Result<()> {
     if let Some(p) = &a.json {
         std::fs::write(p, serde_json::to_string_pretty(&runs)?)?;
     }
+    Ok(())
+}
+
+/// `--sim`: the firmware's simulated runs (`host-sim firmware --seed S [--moving]
+/// --odometry-noise MODEL`), tracked as the robot tracks them; position and heading error of
+/// odometry and of the corrected poses against the truth.
+fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
+    use host_sim::sim::generate::{generate, GenParams};
+    use host_sim::sim::{simulate, SimConfig};
+    use ogm_core::config::RunConfig;
+    println!("| seed | scans | odometry mean/max m, ° | corrected mean/max m, ° | verdicts T/A/R/U/F/N/W/C | ms/scan |");
+    println!("|---|---|---|---|---|---|");
+    let mut sums = [0.0f64; 4];
+    for &seed in &a.sim {
+        let world = generate(
+            &GenParams {
+                width: 256,
+                height: 256,
+                ..GenParams::default()
+            },
+            seed,
+        );
+        let mut sc = SimConfig::default();
+        if a.moving {
+            // As `host-sim firmware --moving` sets it up.
+            sc.explore = host_sim::sim::explore::ExploreConfig::moving(10.0, 0.4, 0);
+            sc.explore.max_stops = SimConfig::default().explore.max_stops * 25;
+            sc.lidar.beams = 456;
+        }
+        let sim = simulate(&world, &sc, seed)?;
+        let truth: Vec<Pose> = sim.scans.iter().map(|s| s.pose).collect();
+        // As `host-sim firmware --odometry-noise` drifts it (integer poses, step by step).
+        let arg = host_sim::firmware::odometry::OdometryArg {
+            name: "",
+            model,
+            seed: None,
+        };
+        let scans = host_sim::firmware::odometry::with_odometry(&sim.scans, &arg, seed);
+        let odometry: Vec<Pose> = scans.iter().map(|s| s.pose).collect();
+        let range_mm = sim.mapper_config.max_range_mm;
+        let robot = RunConfig::ROBOT
+            .with_origin_mm(
+                (world.origin_m.0 * 1000.0).round() as i32,
+                (world.origin_m.1 * 1000.0).round() as i32,
+            )
+            .with_max_range_mm(range_mm);
+        let robot = RunConfig {
+            cell_mm: (world.resolution_m * 1000.0).round() as u32,
+            ..robot
+        };
+        let cfg = robot
+            .match_config()
+            .context("the robot's correction is off")?;
+        let settings = TrackSettings {
+            matcher: apply_settings(a, cfg)?,
+            matching: !a.no_match,
+            face_band: robot.face_band,
+        };
+        let g = robot.geometry(256, 256)?;
+        let t0 = std::time::Instant::now();
+        let t = track(&scans, g, range_mm, &settings)?;
+        let ms = t0.elapsed().as_secs_f64() * 1000.0 / scans.len().max(1) as f64;
+        let err = |poses: &[Pose]| -> (f64, f64, f64, f64) {
+            let (mut m, mut mx, mut h, mut hx) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+            for (p, q) in poses.iter().zip(&truth) {
+                let d = f64::from(p.x_mm - q.x_mm).hypot(f64::from(p.y_mm - q.y_mm)) / 1000.0;
+                let th = f64::from(p.heading.signed_diff(q.heading)).abs() * 360.0 / 65536.0;
+                (m, mx, h, hx) = (m + d, mx.max(d), h + th, hx.max(th));
+            }
+            let n = poses.len().max(1) as f64;
+            (m / n, mx, h / n, hx)
+        };
+        if a.per_scan {
+            per_scan(&scans, &truth, g, range_mm, &settings, (a.oracle, a.quiet))?;
+        }
+        let (o, m) = (err(&odometry), err(&t.poses));
+        println!(
+            "| {seed} | {} | {:.2}/{:.2}, {:.1}/{:.1} | {:.3}/{:.3}, {:.2}/{:.2} | {} | {ms:.2} |",
+            scans.len(),
+            o.0,
+            o.1,
+            o.2,
+            o.3,
+            m.0,
+            m.1,
+            m.2,
+            m.3,
+            t.verdicts.short()
+        );
+        for (s, v) in sums.iter_mut().zip([m.0, m.1, m.2, m.3]) {
+            *s += v;
+        }
+    }
+    let n = a.sim.len() as f64;
+    println!(
+        "mean over seeds: corrected position error mean {:.3} max {:.3} m, heading mean {:.2} max {:.2}°",
+        sums[0] / n,
+        sums[1] / n,
+        sums[2] / n,
+        sums[3] / n
+    );
+    Ok(())
+}
+
+/// `--per-scan`: the tracking loop of [`track`] once more, printing per scan the verdict and
+/// the error of the prediction and of the corrected pose against the truth.
+fn per_scan(
+    scans: &[host_sim::sim::explore::ScanRecord],
+    truth: &[Pose],
+    g: ogm_core::GridGeometry,
+    range_mm: u32,
+    settings: &TrackSettings,
+    (oracle, quiet): (bool, bool),
+) -> anyhow::Result<()> {
+    use ogm_core::localize::{MapView, Tracker};
+    use ogm_core::session::{Owned, Session, Sizes};
+    let mut session = Session::new(
+        host_sim::sim::track::robot_config(&g, range_mm, settings.face_band),
+        Owned::<u8>::buffers(&Sizes::grid(g.width(), g.height())),
+    )?;
+    let mut tracker: Box<Tracker<512>> = Box::new(Tracker::new(settings.matcher));
+    tracker.set_matching(settings.matching);
+    let e = |p: &Pose, q: &Pose| {
+        format!(
+            "{:5} {:5} mm {:6.2}°",
+            p.x_mm - q.x_mm,
+            p.y_mm - q.y_mm,
+            f64::from(p.heading.signed_diff(q.heading)) * 360.0 / 65536.0
+        )
+    };
+    let (mut pos, mut head) = (0.0f64, 0.0f64);
+    for (k, (s, t)) in scans.iter().zip(truth).enumerate() {
+        let map = MapView::new(session.log_odds(), session.geometry())?;
+        let c = tracker.update(&map, &s.pose, &s.beams);
+        let q = c.matched.map(|m| m.quality).unwrap_or_default();
+        if !quiet {
+            println!(
+                "  scan {k:2}: predicted {} corrected {} {:?} overlap {} drops {}/{}/{}",
+                e(&c.predicted, t),
+                e(&c.pose, t),
+                c.verdict(),
+                q.overlap,
+                q.drop_weak,
+                q.drop_strong,
+                q.drop_turn
+            );
+        }
+        pos += f64::from(c.pose.x_mm - t.x_mm).hypot(f64::from(c.pose.y_mm - t.y_mm));
+        head += f64::from(c.pose.heading.signed_diff(t.heading)).abs() * 360.0 / 65536.0;
+        session.insert(if oracle { t } else { &c.pose }, &s.beams)?;
+    }
+    let n = scans.len().max(1) as f64;
+    println!(
+        "  per-scan mean error {:.3} m {:.2}°",
+        pos / n / 1000.0,
+        head / n
+    );
     Ok(())
 }
