@@ -97,6 +97,22 @@ pub fn sensor_noise(setup: &LogSetup, all: &[ScanRecord]) -> anyhow::Result<Opti
     ))
 }
 
+/// The noise of `scans` (an experiment's selection) whose log-odds map is `map`: σ from `sensor`
+/// (all the sensor's scans, [`sensor_noise`]) if given, else from `scans`; the shares of hits
+/// that support no surface from `scans`.
+pub fn experiment_noise(
+    setup: &LogSetup,
+    scans: &[ScanRecord],
+    map: &[LogOdds],
+    sensor: Option<&NoiseEstimate>,
+) -> Option<NoiseEstimate> {
+    let (g, mapper) = (&setup.geometry, &setup.mapper);
+    match sensor {
+        Some(n) => crate::eval::noise::estimate_with_sensor(g, mapper, scans, map, n),
+        None => crate::eval::noise::estimate(g, mapper, scans, map),
+    }
+}
+
 /// Maps `scans` (an experiment's selection) on `setup`'s grid traditionally and by each of
 /// `methods`, with σ and the sensor estimated unless `cfg` fixes σ: σ from `sensor` (the
 /// sensor's noise over all its scans, [`sensor_noise`]) if given, else from `scans`; the shares
@@ -120,11 +136,7 @@ pub fn map_experiment(
     seconds.insert("traditional".to_string(), t.seconds);
     let mut iterations = BTreeMap::new();
     let mut graph = None;
-    // The sensor's noise: σ from all its data if given, the shares from this experiment's.
-    let noise = match sensor {
-        Some(n) => crate::eval::noise::estimate_with_sensor(&g, &setup.mapper, scans, &t.map, n),
-        None => crate::eval::noise::estimate(&g, &setup.mapper, scans, &t.map),
-    };
+    let noise = experiment_noise(setup, scans, &t.map, sensor);
     // The forward models read the MAD's σ; the robot's settings the mixture's σ and τ.
     let cfg = match (cfg.estimate_sigma, noise) {
         (true, Some(n)) => cfg

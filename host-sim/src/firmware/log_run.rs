@@ -38,7 +38,7 @@ use crate::eval::eval_log::{
     benchmark_truth, map_scans, setup_log, Experiment, LogMapArgs, BENCHMARK_THRESHOLD,
     NEAR_MAPPED_CELLS,
 };
-use crate::eval::log_maps::sensor_noise;
+use crate::eval::log_maps::{experiment_noise, sensor_noise};
 use crate::eval::metrics::{mask_within, PrAccumulator, Summary};
 use crate::sim::probabilities;
 
@@ -132,16 +132,12 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
     // The robot's settings made for this log's sensor, as eval-log's robot mode makes them (σ
     // from all the log's scans, the shares of unsupported hits from the experiment's), on the
     // robot's grid.
-    let sensor = match sensor_noise(&setup, &setup.scans)? {
-        Some(all) => crate::eval::noise::estimate_with_sensor(
-            &g,
-            &setup.mapper,
-            &scans,
-            &map_scans(g, setup.mapper, &scans)?.map,
-            &all,
-        ),
-        None => None,
-    }
+    let sensor = experiment_noise(
+        &setup,
+        &scans,
+        &map_scans(g, setup.mapper, &scans)?.map,
+        sensor_noise(&setup, &setup.scans)?.as_ref(),
+    )
     .map(|n| n.sensor());
     let robot = match sensor {
         Some((sigma, tau)) => RunConfig::ROBOT.with_sensor(sigma, tau)?,
