@@ -23,11 +23,11 @@ use super::args::FirmwareArgs;
 use super::compare::{compare, Checker};
 use super::groups::{decode_captured, Groups};
 use super::input::scan_packets;
-use super::qemu::{build_elf, build_elf_with, repo_root, run_qemu_paced, Paced, QemuRun, Step};
+use super::qemu::{build_elf, repo_root, run_qemu_paced, Paced, Step};
 use super::replay::{replay_fixed, HostMemory, HostPlatform, FIRMWARE_SIZES};
-use super::report::{figures, FirmwareReport};
+use super::report::FirmwareReport;
 use super::robot::{Line, RobotInput};
-use super::run::robot_report;
+use super::run::{checked_robot_report, robot_firmware, robot_report};
 use crate::sim::explore::ScanRecord;
 
 /// The host's side: the building as streamed, and whether it sends stored tiles back.
@@ -254,20 +254,12 @@ pub fn run_scans_online(
         stream_bytes: ds.bytes,
         stream_frames: ds.frames,
         stream_bad_frames: ds.bad_frames,
-        hello: groups.hello.clone(),
-        tiles: groups.all_tiles.len() as u64,
-        device_errors: groups.errors,
-        counters: groups.final_counters,
-        sampler: groups.final_sampler,
-        done: groups.done,
         ..FirmwareReport::default()
     };
+    report.read_stream(&groups, &events);
     let mut checker = Checker::default();
     if let Err(e) = compare(&sent, &[], &groups, &mut checker) {
         checker.fail(format!("{e:#}"));
-    }
-    if let Some(h) = &groups.hello {
-        report.figures = figures(&groups, h);
     }
     report.mismatches = checker.mismatches;
     report.checks = checker.checks;
@@ -299,11 +291,7 @@ pub(super) fn run_input_online(
     }
     let qemu_dir = repo_root().join("firmware/target/qemu");
     std::fs::create_dir_all(&qemu_dir)?;
-    let elf = match &args.elf {
-        Some(e) => e.clone(),
-        None => build_elf_with(&qemu_dir.join("host-sim-build.log"), args.lidar.features())?,
-    };
-    let log = (!args.verbose).then(|| qemu_dir.join("host-sim-firmware.log"));
+    let (elf, log) = robot_firmware(args, &qemu_dir)?;
     let (run, sent) = run_qemu_paced(
         &elf,
         Paced {
@@ -317,42 +305,8 @@ pub(super) fn run_input_online(
         log.as_deref(),
     )
     .context("the firmware in QEMU")?;
-    let QemuRun {
-        stream,
-        status,
-        secs,
-        ..
-    } = run;
-    let (events, ds) = decode_captured(&stream);
-    let groups = Groups::of(&events);
-    let mut checker = Checker::default();
-    let exit_code = status.and_then(|s| s.code());
-    if exit_code != Some(0) {
-        checker.fail(format!(
-            "firmware exit status {exit_code:?} (log: {})",
-            log.as_ref()
-                .map_or("stdout".into(), |l| l.display().to_string())
-        ));
-    }
-    if let Err(e) = compare(&sent, &input.lidar, &groups, &mut checker) {
-        checker.fail(format!("{e:#}"));
-    }
-    let r = robot_report(config, input, &sent, &groups, &events);
-    Ok((
-        FirmwareReport {
-            stream_bytes: ds.bytes,
-            stream_frames: ds.frames,
-            stream_bad_frames: ds.bad_frames,
-            exit_code,
-            qemu_seconds: secs,
-            mismatches: checker.mismatches,
-            checks: checker.checks,
-            log,
-            ..r
-        },
-        stream,
-        sent,
-    ))
+    let report = checked_robot_report(config, input, &sent, &run, log, |_| ());
+    Ok((report, run.stream, sent))
 }
 
 #[cfg(test)]

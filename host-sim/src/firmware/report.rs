@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use ogm_core::config::RunConfig;
 use ogm_core::wire::{Counters, Done, SamplerReport};
-use ogm_field::stream::OwnedHello;
+use ogm_field::stream::{DeviceEvent, OwnedHello};
 use serde::Serialize;
 
 use super::groups::Groups;
@@ -69,6 +69,25 @@ impl FirmwareReport {
     /// Whether the firmware's map equals the host's, cell for cell (and it ran to the end).
     pub fn identical(&self) -> bool {
         self.mismatches.is_empty() && self.done.is_some() && self.checks > 0
+    }
+
+    /// Fills in what the robot's map stream says (`events`, grouped as `groups`): its `Hello`
+    /// and how many it sent, tiles, errors, the final counters and sampler report, `Done`, and
+    /// the instruction figures.
+    pub(super) fn read_stream(&mut self, groups: &Groups, events: &[DeviceEvent]) {
+        self.hello = groups.hello.clone();
+        self.hellos = events
+            .iter()
+            .filter(|e| matches!(e, DeviceEvent::Hello(_)))
+            .count();
+        self.tiles = groups.all_tiles.len() as u64;
+        self.device_errors = groups.errors;
+        self.counters = groups.final_counters;
+        self.sampler = groups.final_sampler;
+        self.done = groups.done;
+        if let Some(h) = &groups.hello {
+            self.figures = figures(groups, h);
+        }
     }
 }
 

@@ -108,16 +108,7 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
             report.stream_bad_frames,
         ) = (ds.bytes, ds.frames, ds.bad_frames);
         let groups = Groups::of(&events);
-        report.hellos = events
-            .iter()
-            .filter(|e| matches!(e, DeviceEvent::Hello(_)))
-            .count();
-        report.hello = groups.hello.clone();
-        report.tiles = groups.all_tiles.len() as u64;
-        report.device_errors = groups.errors;
-        report.counters = groups.final_counters;
-        report.sampler = groups.final_sampler;
-        report.done = groups.done;
+        report.read_stream(&groups, &events);
         let mut checker = Checker::default();
         if report.exit_code != Some(0) {
             checker.fail(format!(
@@ -144,9 +135,6 @@ pub fn run(args: &FirmwareArgs) -> anyhow::Result<FirmwareReport> {
                 }
                 Err(e) => checker.fail(format!("surviving-packets replay: {e:#}")),
             }
-        }
-        if let Some(h) = &groups.hello {
-            report.figures = figures(&groups, h);
         }
         report.mismatches = checker.mismatches;
         report.checks = checker.checks;
@@ -331,11 +319,7 @@ pub(super) fn run_input(
         let groups = Groups::of(&events);
         return Ok((robot_report(config, input, &link, &groups, &events), stream));
     }
-    let elf = match &args.elf {
-        Some(e) => e.clone(),
-        None => build_elf_with(&qemu_dir.join("host-sim-build.log"), args.lidar.features())?,
-    };
-    let log = (!args.verbose).then(|| qemu_dir.join("host-sim-firmware.log"));
+    let (elf, log) = robot_firmware(args, &qemu_dir)?;
     let line = LidarLine {
         bytes: &input.lidar,
         schedule: &input.schedule,
@@ -344,12 +328,7 @@ pub(super) fn run_input(
         answers: matches!(config.lidar, LidarModel::Rplidar { .. })
             .then_some(ogm_core::lidar::rplidar::REQ_SCAN),
     };
-    let QemuRun {
-        stream,
-        status,
-        secs,
-        heard,
-    } = run_qemu(
+    let run = run_qemu(
         &elf,
         &input.link,
         Some(line),
@@ -358,23 +337,9 @@ pub(super) fn run_input(
     )?;
     if let Some(out) = &args.out {
         std::fs::create_dir_all(out)?;
-        std::fs::write(out.join("stream.bin"), &stream)?;
+        std::fs::write(out.join("stream.bin"), &run.stream)?;
         std::fs::write(out.join("input.bin"), &link)?;
         std::fs::write(out.join("lidar.bin"), &input.lidar)?;
-    }
-    let (events, ds) = decode_captured(&stream);
-    let groups = Groups::of(&events);
-    let mut checker = Checker::default();
-    let exit_code = status.and_then(|s| s.code());
-    if exit_code != Some(0) {
-        checker.fail(format!(
-            "firmware exit status {exit_code:?} (log: {})",
-            log.as_ref()
-                .map_or("stdout".into(), |l| l.display().to_string())
-        ));
-    }
-    if let Err(e) = compare(&link, &input.lidar, &groups, &mut checker) {
-        checker.fail(format!("{e:#}"));
     }
     // What an RPLIDAR must hear before it scans: STOP, then SCAN; an LD06 nothing.
     let want: &[u8] = match config.lidar {
@@ -385,26 +350,70 @@ pub(super) fn run_input(
         .concat(),
         LidarModel::Ld06 => &[],
     };
-    checker.eq(
-        || "bytes the firmware sent the lidar".into(),
-        &heard.as_slice(),
-        &want,
-    );
-    let r = robot_report(config, input, &link, &groups, &events);
+    let report = checked_robot_report(config, input, &link, &run, log, |checker| {
+        checker.eq(
+            || "bytes the firmware sent the lidar".into(),
+            &run.heard.as_slice(),
+            &want,
+        );
+    });
+    Ok((report, run.stream))
+}
+
+/// The firmware ELF a robot run uses (`--elf`, else built with the lidar's features; the build
+/// log in `qemu_dir`) and where QEMU's log goes (`None` with `--verbose`: stdout).
+pub(super) fn robot_firmware(
+    args: &FirmwareArgs,
+    qemu_dir: &std::path::Path,
+) -> anyhow::Result<(std::path::PathBuf, Option<std::path::PathBuf>)> {
+    let elf = match &args.elf {
+        Some(e) => e.clone(),
+        None => build_elf_with(&qemu_dir.join("host-sim-build.log"), args.lidar.features())?,
+    };
     Ok((
-        FirmwareReport {
-            stream_bytes: ds.bytes,
-            stream_frames: ds.frames,
-            stream_bad_frames: ds.bad_frames,
-            exit_code,
-            qemu_seconds: secs,
-            mismatches: checker.mismatches,
-            checks: checker.checks,
-            log,
-            ..r
-        },
-        stream,
+        elf,
+        (!args.verbose).then(|| qemu_dir.join("host-sim-firmware.log")),
     ))
+}
+
+/// The report of a robot run in QEMU (`run`, its log at `log`): its stream decoded and checked
+/// message for message against the host replay of `link` (the link as the host sent it) and
+/// `input`'s lidar bytes, its exit status checked, `more` checks added.
+pub(super) fn checked_robot_report(
+    config: &RunConfig,
+    input: &super::robot::RobotInput,
+    link: &[u8],
+    run: &QemuRun,
+    log: Option<std::path::PathBuf>,
+    more: impl FnOnce(&mut Checker),
+) -> FirmwareReport {
+    let (events, ds) = decode_captured(&run.stream);
+    let groups = Groups::of(&events);
+    let mut checker = Checker::default();
+    let exit_code = run.status.and_then(|s| s.code());
+    if exit_code != Some(0) {
+        checker.fail(format!(
+            "firmware exit status {exit_code:?} (log: {})",
+            log.as_ref()
+                .map_or("stdout".into(), |l| l.display().to_string())
+        ));
+    }
+    if let Err(e) = compare(link, &input.lidar, &groups, &mut checker) {
+        checker.fail(format!("{e:#}"));
+    }
+    more(&mut checker);
+    let r = robot_report(config, input, link, &groups, &events);
+    FirmwareReport {
+        stream_bytes: ds.bytes,
+        stream_frames: ds.frames,
+        stream_bad_frames: ds.bad_frames,
+        exit_code,
+        qemu_seconds: run.secs,
+        mismatches: checker.mismatches,
+        checks: checker.checks,
+        log,
+        ..r
+    }
 }
 
 /// The LD06 sits this far ahead of the robot's centre in `--robot` runs, mm.
@@ -421,25 +430,10 @@ pub(super) fn robot_report(
     let mut reports: Vec<ScanReport> = groups.scans.values().map(|g| g.report).collect();
     reports.sort_by_key(|r| r.seq);
     let (pos, head) = super::robot::pose_errors(&reports, input, config);
-    FirmwareReport {
-        hello: groups.hello.clone(),
+    let mut report = FirmwareReport {
         config: Some(*config),
         scans_sent: input.turns as usize,
         input_bytes: link.len() + input.lidar.len(),
-        tiles: groups.all_tiles.len() as u64,
-        device_errors: groups.errors,
-        counters: groups.final_counters,
-        sampler: groups.final_sampler,
-        done: groups.done,
-        figures: groups
-            .hello
-            .as_ref()
-            .map(|h| figures(groups, h))
-            .unwrap_or_default(),
-        hellos: events
-            .iter()
-            .filter(|e| matches!(e, DeviceEvent::Hello(_)))
-            .count(),
         robot: Some(RobotReport {
             turns_sent: input.turns,
             lidar_bytes: input.lidar.len(),
@@ -450,7 +444,9 @@ pub(super) fn robot_report(
             max_heading_error_deg: head,
         }),
         ..FirmwareReport::default()
-    }
+    };
+    report.read_stream(groups, events);
+    report
 }
 
 /// The CLI entry point.
