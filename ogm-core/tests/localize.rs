@@ -11,8 +11,8 @@ use ogm_core::{
 };
 use proptest::prelude::*;
 
-/// A wall from (x0, y0) to (x1, y1), mm.
-type Seg = (f64, f64, f64, f64);
+mod common;
+use common::{pose_of, scan, Seg};
 
 /// A 6 × 4 m room (corner at the origin) with a pillar and a niche, so that no direction and no
 /// rotation is left open.
@@ -37,47 +37,6 @@ fn room() -> Vec<Seg> {
 /// A corridor along x, 1.6 m wide, 30 m long.
 fn corridor() -> Vec<Seg> {
     vec![(0.0, 0.0, 30_000.0, 0.0), (0.0, 1600.0, 30_000.0, 1600.0)]
-}
-
-/// A synthetic lidar: `n` beams over a full turn from `pose`, range `max_mm`, exact.
-fn scan(world: &[Seg], pose: (f64, f64, f64), n: u32, max_mm: f64) -> Vec<Beam> {
-    let (px, py, th) = pose;
-    (0..n)
-        .map(|i| {
-            let a = f64::from(i) / f64::from(n) * std::f64::consts::TAU;
-            let (dx, dy) = ((th + a).cos(), (th + a).sin());
-            let mut best = f64::INFINITY;
-            for &(x0, y0, x1, y1) in world {
-                let (ex, ey) = (x1 - x0, y1 - y0);
-                let den = dx * ey - dy * ex;
-                if den.abs() < 1e-12 {
-                    continue;
-                }
-                let t = ((x0 - px) * ey - (y0 - py) * ex) / den;
-                let u = ((x0 - px) * dy - (y0 - py) * dx) / den;
-                if t > 0.0 && (0.0..=1.0).contains(&u) {
-                    best = best.min(t);
-                }
-            }
-            let range = if best < max_mm {
-                Range::Hit(best.round() as u32)
-            } else {
-                Range::NoReturn
-            };
-            Beam {
-                angle: Angle::from_radians(a),
-                range,
-            }
-        })
-        .collect()
-}
-
-fn pose_of(p: (f64, f64, f64)) -> Pose {
-    Pose::new(
-        p.0.round() as i32,
-        p.1.round() as i32,
-        Angle::from_radians(p.2),
-    )
 }
 
 /// A map of `world` built by the online mapper from scans at `poses` (exact poses).

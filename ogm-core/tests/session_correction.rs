@@ -10,8 +10,8 @@ use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::wire::MatchVerdict;
 use ogm_core::{Angle, Beam, Pose, Range};
 
-/// A wall from (x0, y0) to (x1, y1), mm.
-type Seg = (f64, f64, f64, f64);
+mod common;
+use common::{pose_of, Seg};
 
 /// A 5 × 4 m room centred on the origin, with a pillar, a cabinet and a partition, so that no
 /// direction and no rotation is left open.
@@ -32,44 +32,9 @@ fn room() -> Vec<Seg> {
     ]
 }
 
-/// A synthetic lidar: 360 beams over a full turn from `pose` (mm, mm, rad), exact, 6 m.
+/// The session tests' lidar: 360 beams, 6 m.
 fn scan(world: &[Seg], pose: (f64, f64, f64)) -> Vec<Beam> {
-    let (px, py, th) = pose;
-    (0..360)
-        .map(|i| {
-            let a = f64::from(i).to_radians();
-            let (dx, dy) = ((th + a).cos(), (th + a).sin());
-            let mut best = f64::INFINITY;
-            for &(x0, y0, x1, y1) in world {
-                let (ex, ey) = (x1 - x0, y1 - y0);
-                let den = dx * ey - dy * ex;
-                if den.abs() < 1e-12 {
-                    continue;
-                }
-                let t = ((x0 - px) * ey - (y0 - py) * ex) / den;
-                let u = ((x0 - px) * dy - (y0 - py) * dx) / den;
-                if t > 0.0 && (0.0..=1.0).contains(&u) {
-                    best = best.min(t);
-                }
-            }
-            Beam {
-                angle: Angle::from_radians(a),
-                range: if best < 6000.0 {
-                    Range::Hit(best.round() as u32)
-                } else {
-                    Range::NoReturn
-                },
-            }
-        })
-        .collect()
-}
-
-fn pose_of(p: (f64, f64, f64)) -> Pose {
-    Pose::new(
-        p.0.round() as i32,
-        p.1.round() as i32,
-        Angle::from_radians(p.2),
-    )
+    common::scan(world, pose, 360, 6000.0)
 }
 
 /// Position (mm) and heading (degrees) error of `p` against `truth`.
