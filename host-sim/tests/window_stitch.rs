@@ -5,7 +5,7 @@
 //! byte for byte what the fixed grid gave before the building map (the tiles applied in order
 //! to a [`StreamedMap`]).
 
-use host_sim::firmware::input::{encode_run, scan_packets};
+use host_sim::firmware::input::{beams_as_read, encode_run};
 use host_sim::firmware::HostMemory;
 use host_sim::sim::boxes;
 use host_sim::sim::explore::ScanRecord;
@@ -71,13 +71,7 @@ fn robot_stream(config: &RunConfig, scans: &[ScanRecord]) -> Vec<u8> {
 
 /// The beams as the firmware reads them: through the LD06 packets.
 fn as_read(s: &ScanRecord, ts: &mut u16) -> Vec<Beam> {
-    let bytes = scan_packets(&s.beams, ts).unwrap();
-    let mut beams = Vec::new();
-    ogm_core::lidar::ld06::Ld06Parser::new().feed(&bytes, |p| {
-        let p = p.expect("a packet");
-        beams.extend((0..12).filter_map(|i| p.beam(i)));
-    });
-    beams
+    beams_as_read(&s.beams, ts).unwrap()
 }
 
 fn decode(stream: &[u8]) -> Vec<DeviceEvent> {

@@ -49,12 +49,7 @@ fn differ(config: &RunConfig, scans: &[ScanRecord], r: &BuildingRender) -> (usiz
     // The beams as the firmware reads them: through the LD06 packets (clockwise order).
     let mut ts = 0u16;
     for s in scans {
-        let bytes = host_sim::firmware::input::scan_packets(&s.beams, &mut ts).unwrap();
-        let mut beams = Vec::new();
-        ogm_core::lidar::ld06::Ld06Parser::new().feed(&bytes, |p| {
-            let p = p.expect("a packet");
-            beams.extend((0..12).filter_map(|i| p.beam(i)));
-        });
+        let beams = host_sim::firmware::input::beams_as_read(&s.beams, &mut ts).unwrap();
         assert_eq!(beams.len(), s.beams.len());
         host.insert(&s.pose, &beams).unwrap();
     }

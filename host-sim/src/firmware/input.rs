@@ -185,6 +185,23 @@ pub fn scan_packets(beams: &[Beam], timestamp_ms: &mut u16) -> anyhow::Result<Ve
     Ok(out)
 }
 
+/// A scan's beams as the firmware reads them: through [`scan_packets`] and the LD06 parser
+/// (clockwise, at the packets' resolution). What a host map that must equal the robot's inserts.
+pub fn beams_as_read(beams: &[Beam], timestamp_ms: &mut u16) -> anyhow::Result<Vec<Beam>> {
+    let bytes = scan_packets(beams, timestamp_ms)?;
+    let mut read = Vec::with_capacity(beams.len());
+    let mut bad = 0usize;
+    ld06::Ld06Parser::new().feed(&bytes, |p| match p {
+        Ok(p) => read.extend((0..ld06::POINTS).filter_map(|i| p.beam(i))),
+        Err(_) => bad += 1,
+    });
+    anyhow::ensure!(
+        bad == 0,
+        "{bad} of the scan's own LD06 packets did not parse"
+    );
+    Ok(read)
+}
+
 /// A robot input ([`RunInput`], e.g. from [`encode_run`]) as `host-sim listen --send` lines: each
 /// host frame as its JSON message, each LD06 packet and garbage burst as a raw line. Sent, the
 /// lines give exactly `input.bytes`.

@@ -11,7 +11,7 @@ use ogm_core::wire::{self, DeviceMsg, ErrorCode, HostMsg, Layer, WindowReport};
 use ogm_core::{Beam, Pose};
 use ogm_field::stream::host_frame;
 
-use super::input::scan_packets;
+use super::input::{beams_as_read, scan_packets};
 use super::replay::{HostMemory, HostPlatform, FIRMWARE_SIZES};
 use crate::sim::boxes;
 
@@ -175,13 +175,8 @@ fn differ(scans: &[(Pose, Vec<Beam>)], stitched: &HashMap<(i32, i32), i16>) -> (
     .unwrap();
     let mut ts = 0u16;
     for (pose, beams) in scans {
-        let bytes = scan_packets(beams, &mut ts).unwrap();
-        let mut read = Vec::new();
-        ogm_core::lidar::ld06::Ld06Parser::new().feed(&bytes, |p| {
-            let p = p.expect("a packet");
-            read.extend((0..12).filter_map(|i| p.beam(i)));
-        });
-        s.insert(pose, &read).unwrap();
+        s.insert(pose, &beams_as_read(beams, &mut ts).unwrap())
+            .unwrap();
     }
     let (mut differ, mut known) = (0, 0);
     for (i, l) in s.log_odds().iter().enumerate() {
