@@ -235,7 +235,7 @@ impl Listener {
 
 #[cfg(test)]
 mod tests {
-    use super::super::test_stream::{cobs, config, frame, hello, stream};
+    use super::super::test_stream::{cobs, config, frame, hello, hello_of, stream};
     use super::*;
     use ogm_core::wire::{self, DeviceMsg, Done, Hello, Layer, ScanReport, Tile};
 
@@ -411,19 +411,7 @@ mod tests {
     fn stored_tiles_go_back_when_the_window_returns_unless_told_not_to() {
         // A 32 × 32 window of 16-cell tiles; tile (0, 0) mapped, then the window moves east
         // and back.
-        let hello = frame(&DeviceMsg::Hello(Hello {
-            firmware: "test",
-            board: "host",
-            tick_hz: 1000,
-            width: 32,
-            height: 32,
-            tile_edge: 16,
-            max_beams: 456,
-            ray_capacity: 1,
-            scan_capacity: 1,
-            local_capacity: 1,
-            count_max: 255,
-        }));
+        let hello = hello_of(32, 32);
         let lo = 300i16.to_le_bytes().repeat(256);
         let est = vec![40u8; 256];
         let mut s = hello;

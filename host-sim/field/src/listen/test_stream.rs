@@ -34,12 +34,17 @@ pub(super) fn cobs(raw: &[u8]) -> Vec<u8> {
 }
 
 pub(super) fn hello() -> Vec<u8> {
+    hello_of(40, 24)
+}
+
+/// The test robot's `Hello` with a `width × height` grid of 16-cell tiles.
+pub(super) fn hello_of(width: u16, height: u16) -> Vec<u8> {
     frame(&DeviceMsg::Hello(Hello {
         firmware: "test",
         board: "host",
         tick_hz: 1000,
-        width: 40,
-        height: 24,
+        width,
+        height,
         tile_edge: 16,
         max_beams: 456,
         ray_capacity: 1,
