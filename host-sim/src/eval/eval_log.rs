@@ -94,6 +94,16 @@ pub struct EvalLogArgs {
     pub odometry: crate::eval::odometry_args::OdometryArgs,
 }
 
+impl EvalLogArgs {
+    /// The experiments to run: `--experiment`'s, else all three.
+    pub fn experiments(&self) -> Vec<u8> {
+        match self.experiment {
+            Some(e) => vec![e],
+            None => vec![1, 2, 3],
+        }
+    }
+}
+
 /// Counts of one data set (benchmark or experiment).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DataCounts {
@@ -208,10 +218,7 @@ pub struct LogReport {
 pub fn run(args: &EvalLogArgs) -> anyhow::Result<()> {
     let logs = collect_logs(&args.log)?;
     let variants = parse_methods(&args.methods)?;
-    let experiments: Vec<u8> = match args.experiment {
-        Some(e) => vec![e],
-        None => vec![1, 2, 3],
-    };
+    let experiments = args.experiments();
     let cfg = MethodsConfig::new(&args.map)?;
     args.perturb.validate()?;
     ensure!(

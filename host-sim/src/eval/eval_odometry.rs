@@ -42,10 +42,7 @@ use crate::sim::track::{drift, track, with_poses, TrackSettings, TRACK_MARGIN_M}
 pub fn run(args: &EvalLogArgs) -> anyhow::Result<()> {
     let logs = collect_logs(&args.log)?;
     let methods = parse_methods(&args.methods)?;
-    let experiments: Vec<u8> = match args.experiment {
-        Some(e) => vec![e],
-        None => vec![1, 2, 3],
-    };
+    let experiments = args.experiments();
     let cfg = MethodsConfig::new(&args.map)?;
     ensure!(
         args.odometry.is_active(),

@@ -329,16 +329,21 @@ mod tests {
     use super::*;
     use crate::sim::{simulate, SimConfig};
 
-    #[test]
-    fn recovers_the_simulated_lidars_noise() {
-        let world = crate::sim::generate::generate(
+    /// A 200 × 200-cell simulated building (seed 3).
+    fn test_world() -> ogm_field::world::World {
+        crate::sim::generate::generate(
             &crate::sim::generate::GenParams {
                 width: 200,
                 height: 200,
                 ..Default::default()
             },
             3,
-        );
+        )
+    }
+
+    #[test]
+    fn recovers_the_simulated_lidars_noise() {
+        let world = test_world();
         for sigma in [0.5, 1.5, 3.0] {
             let mut cfg = SimConfig::default();
             cfg.lidar.sigma_cells = sigma;
@@ -420,14 +425,7 @@ mod tests {
     /// A selection of a few scans takes σ from the sensor's estimate and its shares from itself.
     #[test]
     fn a_selection_takes_the_sensors_sigma() {
-        let world = crate::sim::generate::generate(
-            &crate::sim::generate::GenParams {
-                width: 200,
-                height: 200,
-                ..Default::default()
-            },
-            3,
-        );
+        let world = test_world();
         let mut cfg = SimConfig::default();
         cfg.lidar.sigma_cells = 1.5;
         let run = simulate(&world, &cfg, 3).unwrap();
