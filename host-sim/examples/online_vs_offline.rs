@@ -196,21 +196,7 @@ fn from_stream(dir: &Path, g: &GridGeometry) -> anyhow::Result<(Vec<f64>, Vec<u3
             _ => None,
         })
         .context("no Hello in the stream")?;
-    let mut b = BuildingMap::new(
-        usize::from(hello.width),
-        usize::from(hello.height),
-        usize::from(hello.tile_edge),
-    );
-    for e in &events {
-        match e {
-            DeviceEvent::Window(w) => b.note_window(*w),
-            DeviceEvent::Tile(t) => {
-                let _ = b.apply(t);
-            }
-            _ => {}
-        }
-    }
-    let r = b.render();
+    let r = BuildingMap::stitch(&hello, &events).render();
     let (w, h) = (r.map.width as i64, r.map.height as i64);
     let gw = i64::from(g.width());
     let mut on = vec![0.5; g.len()];

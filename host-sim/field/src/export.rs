@@ -66,18 +66,13 @@ pub fn world_from_stream(
         "{}: Hello gives an empty grid",
         path.display()
     );
-    let mut building = BuildingMap::new(w, h, usize::from(hello.tile_edge));
-    let mut config = None;
-    let mut samples = 0u32;
+    // A bad tile is counted by the map and skipped.
+    let building = BuildingMap::stitch(&hello, &events);
+    let (mut config, mut samples) = (None, 0u32);
     for e in &events {
         match e {
             DeviceEvent::Configured(c) => config = Some(*c),
             DeviceEvent::Sampler(r) => samples = r.samples,
-            DeviceEvent::Window(r) => building.note_window(*r),
-            // A bad tile is counted by the map and skipped.
-            DeviceEvent::Tile(t) => {
-                let _ = building.apply(t);
-            }
             _ => {}
         }
     }

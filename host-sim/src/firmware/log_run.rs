@@ -205,22 +205,15 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         .hello
         .as_ref()
         .context("no Hello in the robot's stream")?;
-    let mut building = BuildingMap::new(
-        usize::from(hello.width),
-        usize::from(hello.height),
-        usize::from(hello.tile_edge),
-    );
-    let mut samples = 0;
-    for e in &events {
-        match e {
-            DeviceEvent::Window(w) => building.note_window(*w),
-            DeviceEvent::Tile(t) => {
-                let _ = building.apply(t);
-            }
-            DeviceEvent::Sampler(s) => samples = s.samples,
-            _ => {}
-        }
-    }
+    let building = BuildingMap::stitch(hello, &events);
+    let samples = events
+        .iter()
+        .rev()
+        .find_map(|e| match e {
+            DeviceEvent::Sampler(s) => Some(s.samples),
+            _ => None,
+        })
+        .unwrap_or(0);
     let render = building.render();
     let reach_cells = ogm_core::Session::new(config, ogm_core::session::Owned::<u8>::buffers(&fw))
         .map_or(0, |s| s.window_reach_cells());

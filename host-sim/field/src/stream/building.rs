@@ -19,7 +19,7 @@ use std::collections::BTreeMap;
 use ogm_core::wire::{Layer, TileRect, WindowReport};
 
 use super::visit::{merge, Older, Revisits};
-use super::{OwnedTile, StreamedMap};
+use super::{DeviceEvent, OwnedHello, OwnedTile, StreamedMap};
 
 /// Largest building a stream may grow to, in cells (4096 × 4096: 205 m square at 5 cm).
 pub const MAX_BUILDING_CELLS: u64 = 1 << 24;
@@ -120,6 +120,27 @@ fn layer_index(layer: Layer) -> usize {
 }
 
 impl BuildingMap {
+    /// The building a map stream stitches to: `hello`'s grid, then every `Window` of `events`
+    /// noted and every tile applied, in order (a tile that does not fit is counted and skipped:
+    /// [`BuildingMap::tiles_bad_size`], [`BuildingMap::tiles_refused`]).
+    pub fn stitch(hello: &OwnedHello, events: &[DeviceEvent]) -> Self {
+        let mut b = BuildingMap::new(
+            usize::from(hello.width),
+            usize::from(hello.height),
+            usize::from(hello.tile_edge),
+        );
+        for e in events {
+            match e {
+                DeviceEvent::Window(w) => b.note_window(*w),
+                DeviceEvent::Tile(t) => {
+                    let _ = b.apply(t);
+                }
+                _ => {}
+            }
+        }
+        b
+    }
+
     /// An empty building around the robot's `width × height` grid of `edge`-cell tiles (its
     /// `Hello`), whose tile (0, 0) is building tile (0, 0).
     pub fn new(width: usize, height: usize, edge: usize) -> Self {
