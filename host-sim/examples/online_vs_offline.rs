@@ -48,8 +48,8 @@ fn main() -> anyhow::Result<()> {
     };
     let setup = setup_log(Path::new(&log), &a)?;
     let scans = Experiment::new(env("EXP", 1))?.select(&setup.scans);
-    let (world, _) = benchmark(&setup)?;
-    let sensor = sensor_noise(&setup, &setup.scans)?;
+    let (world, bench) = benchmark(&setup)?;
+    let sensor = sensor_noise(&setup, &setup.scans, Some(&bench.map))?;
     let em = map_experiment(
         &setup,
         &scans,

@@ -321,7 +321,9 @@ fn eval_one(
     // experiment's own data says how much of it supports a surface.
     let all = perturbed.as_deref().unwrap_or(&setup.scans);
     let sensor = if cfg.estimate_sigma {
-        sensor_noise(&setup, all)?
+        // Unperturbed, `all` is the benchmark's scans and its map is made already.
+        let map = perturbed.is_none().then_some(&bench.map[..]);
+        sensor_noise(&setup, all, map)?
     } else {
         None
     };

@@ -160,7 +160,7 @@ fn eval_log_odometry(
         let scans = with_poses(&setup.scans, poses)?;
         // σ from all the scans at these poses, as eval-log takes it.
         let sensor = if cfg.estimate_sigma {
-            sensor_noise(&setup, &scans)?
+            sensor_noise(&setup, &scans, None)?
         } else {
             None
         };

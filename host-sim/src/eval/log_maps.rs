@@ -86,14 +86,27 @@ impl ExperimentMaps {
 
 /// The sensor's noise estimated from `all`, every scan the sensor produced (e.g. a whole log,
 /// perturbed as the experiments read it), on `setup`'s grid: what [`map_experiment`] takes σ from.
-/// `None` if too few hits have an occupied cell near them.
-pub fn sensor_noise(setup: &LogSetup, all: &[ScanRecord]) -> anyhow::Result<Option<NoiseEstimate>> {
-    let map = map_scans(setup.geometry, setup.mapper, all)?.map;
+/// `map` is `all`'s log-odds map if the caller has it already (the benchmark's, for an
+/// unperturbed log), else it is made here. `None` if too few hits have an occupied cell near
+/// them.
+pub fn sensor_noise(
+    setup: &LogSetup,
+    all: &[ScanRecord],
+    map: Option<&[LogOdds]>,
+) -> anyhow::Result<Option<NoiseEstimate>> {
+    let made;
+    let map = match map {
+        Some(m) => m,
+        None => {
+            made = map_scans(setup.geometry, setup.mapper, all)?.map;
+            &made[..]
+        }
+    };
     Ok(crate::eval::noise::estimate(
         &setup.geometry,
         &setup.mapper,
         all,
-        &map,
+        map,
     ))
 }
 

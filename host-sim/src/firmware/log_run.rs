@@ -129,6 +129,9 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
             max_updates: args.max_updates,
         },
     };
+    // The benchmark's map: all of the log's scans (σ is estimated from it, and the robot's maps
+    // are scored against it).
+    let bench = map_scans(g, setup.mapper, &setup.scans)?;
     // The robot's settings made for this log's sensor, as eval-log's robot mode makes them (σ
     // from all the log's scans, the shares of unsupported hits from the experiment's), on the
     // robot's grid.
@@ -136,7 +139,7 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         &setup,
         &scans,
         &map_scans(g, setup.mapper, &scans)?.map,
-        sensor_noise(&setup, &setup.scans)?.as_ref(),
+        sensor_noise(&setup, &setup.scans, Some(&bench.map))?.as_ref(),
     )
     .map(|n| n.sensor());
     let robot = match sensor {
@@ -236,7 +239,14 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
             _ => 0.5,
         })
         .collect();
-    let (near_mapped, coverage) = score(&setup, &probs(MapLayer::LogOdds), &estimates, (w, h), at)?;
+    let (near_mapped, coverage) = score(
+        &setup,
+        &bench,
+        &probs(MapLayer::LogOdds),
+        &estimates,
+        (w, h),
+        at,
+    )?;
     let report = LogRunReport {
         log: path.display().to_string(),
         experiment,
@@ -327,17 +337,18 @@ fn unbounded_differ(
 }
 
 /// F1 near mapped of the robot's maps (`traditional`: its log-odds, `gibbs_l9_border`: its
-/// sampler's marginals) against the log's benchmark over the stitched map (`w × h` cells at
-/// `off` in the benchmark's grid), and the share of the benchmark's mapped cells it covers.
+/// sampler's marginals) against the log's benchmark (`bench`: the map of all of `setup`'s scans)
+/// over the stitched map (`w × h` cells at `off` in the benchmark's grid), and the share of the
+/// benchmark's mapped cells it covers.
 fn score(
     setup: &crate::eval::eval_log::LogSetup,
+    bench: &crate::eval::log_setup::Mapped,
     log_odds: &[f64],
     sampler: &[f64],
     (w, h): (usize, usize),
     off: (i64, i64),
 ) -> anyhow::Result<(Vec<(String, Summary)>, f64)> {
     let g: GridGeometry = setup.geometry;
-    let bench = map_scans(g, setup.mapper, &setup.scans)?;
     let truth = benchmark_truth(
         &probabilities(&bench.map),
         &bench.observed,
