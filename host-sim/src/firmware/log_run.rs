@@ -230,20 +230,11 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
     let at = (off.0 + render.x0, off.1 + render.y0);
     // The sampler's map is scored as eval-log scores its samplers: its estimate in every cell
     // the robot streamed one for, including cells no ray reached (the prior's inference).
-    let estimates: Vec<f64> = (0..w * h)
-        .map(|i| match render.have_counts.get(i) {
-            Some(true) => {
-                let c = render.map.counts.get(i).copied().unwrap_or(0);
-                (f64::from(c) / f64::from(one.max(1))).min(1.0)
-            }
-            _ => 0.5,
-        })
-        .collect();
     let (near_mapped, coverage) = score(
         &setup,
         &bench,
         &probs(MapLayer::LogOdds),
-        &estimates,
+        &probs(MapLayer::Estimates),
         (w, h),
         at,
     )?;

@@ -83,12 +83,16 @@ pub enum MapLayer {
     Marginals,
     /// The log-odds map.
     LogOdds,
+    /// The sampler's estimates wherever their tile arrived, never-measured cells included (the
+    /// prior's inference there: how `eval-log` scores its samplers); 0.5 where none arrived.
+    Estimates,
 }
 
 /// Per-cell probabilities of a streamed map, as `host-sim export --stream` computes them:
-/// log-odds 0 (never measured) is 0.5 (unknown) in both layers; with [`MapLayer::Marginals`] a
-/// cell whose marginal tile arrived (`have_counts`) is `count / counts_of_one` (capped at 1),
-/// any other its log-odds probability.
+/// log-odds 0 (never measured) is 0.5 (unknown) in the first two layers; with
+/// [`MapLayer::Marginals`] a cell whose marginal tile arrived (`have_counts`) is `count /
+/// counts_of_one` (capped at 1), any other its log-odds probability; [`MapLayer::Estimates`] is
+/// that estimate in every cell whose tile arrived, measured or not, and 0.5 elsewhere.
 pub fn stream_probabilities(
     map: &StreamedMap,
     have_counts: &[bool],
@@ -97,15 +101,18 @@ pub fn stream_probabilities(
 ) -> Vec<f64> {
     (0..map.width * map.height)
         .map(|i| {
-            let l = map.log_odds.get(i).copied().unwrap_or(0);
-            if l == 0 {
-                return 0.5;
-            }
-            if layer == MapLayer::Marginals && have_counts.get(i) == Some(&true) {
+            let estimate = || {
                 let c = map.counts.get(i).copied().unwrap_or(0);
                 (f64::from(c) / f64::from(counts_of_one.max(1))).min(1.0)
-            } else {
-                ogm_core::LogOdds(l).probability()
+            };
+            let have = have_counts.get(i) == Some(&true);
+            let l = map.log_odds.get(i).copied().unwrap_or(0);
+            match layer {
+                MapLayer::Estimates if have => estimate(),
+                MapLayer::Estimates => 0.5,
+                _ if l == 0 => 0.5,
+                MapLayer::Marginals if have => estimate(),
+                _ => ogm_core::LogOdds(l).probability(),
             }
         })
         .collect()
@@ -121,5 +128,25 @@ pub fn counts_of_one(
     match config.map(|c| c.estimator) {
         Some(ogm_core::config::Estimator::Counts) => samples,
         _ => hello.map_or(255, |h| h.count_max),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Four cells: measured with an estimate, measured without, never measured with an
+    /// estimate, never measured without.
+    #[test]
+    fn each_layer_reads_the_cells_it_says() {
+        let mut m = StreamedMap::new(4, 1, 16);
+        m.log_odds = vec![1024, -1024, 0, 0];
+        m.counts = vec![255, 0, 51, 0];
+        let have = [true, false, true, false];
+        let p = |layer| stream_probabilities(&m, &have, 255, layer);
+        let lo = |l: i16| ogm_core::LogOdds(l).probability();
+        assert_eq!(p(MapLayer::LogOdds), vec![lo(1024), lo(-1024), 0.5, 0.5]);
+        assert_eq!(p(MapLayer::Marginals), vec![1.0, lo(-1024), 0.5, 0.5]);
+        assert_eq!(p(MapLayer::Estimates), vec![1.0, 0.5, 0.2, 0.5]);
     }
 }
