@@ -57,6 +57,7 @@ where
     // checked before every packet.
     let mut chunk = [0u8; ogm_core::lidar::ld06::PACKET_LEN];
     loop {
+        app.check_hold(link, platform);
         if app.wants_lidar() && lidar.read_ready().unwrap_or(false) {
             match lidar.read(&mut chunk) {
                 Ok(n) => {

@@ -12,7 +12,7 @@
 
 use std::time::Duration;
 
-use host_sim::firmware::online::run_scans_online;
+use host_sim::firmware::online::{run_scans_online, run_turns_online};
 use host_sim::firmware::print_report;
 use host_sim::sim::boxes;
 use host_sim::sim::explore::ScanRecord;
@@ -38,6 +38,25 @@ fn scans(waypoints: &[(f64, f64)]) -> Vec<ScanRecord> {
 
 /// Cells of `r` that differ from the unbounded map of `scans` (and cells it knows).
 fn differ(config: &RunConfig, scans: &[ScanRecord], r: &BuildingRender) -> (usize, usize) {
+    // The beams as the firmware reads them: through the LD06 packets (clockwise order).
+    let mut ts = 0u16;
+    let read: Vec<ScanRecord> = scans
+        .iter()
+        .map(|s| {
+            let beams = host_sim::firmware::input::beams_as_read(&s.beams, &mut ts).unwrap();
+            assert_eq!(beams.len(), s.beams.len());
+            ScanRecord {
+                pose: s.pose,
+                beams,
+            }
+        })
+        .collect();
+    differ_read(config, &read, r)
+}
+
+/// Cells of `r` that differ from the unbounded map of `scans` as the firmware read them (and
+/// cells it knows).
+fn differ_read(config: &RunConfig, scans: &[ScanRecord], r: &BuildingRender) -> (usize, usize) {
     let (x0, y0, w, h) = (-64i32, -64i32, 768u16, 576u16);
     let mut host = Session::new(
         config
@@ -46,12 +65,8 @@ fn differ(config: &RunConfig, scans: &[ScanRecord], r: &BuildingRender) -> (usiz
         Owned::<u8>::buffers(&Sizes::grid(w, h)),
     )
     .unwrap();
-    // The beams as the firmware reads them: through the LD06 packets (clockwise order).
-    let mut ts = 0u16;
     for s in scans {
-        let beams = host_sim::firmware::input::beams_as_read(&s.beams, &mut ts).unwrap();
-        assert_eq!(beams.len(), s.beams.len());
-        host.insert(&s.pose, &beams).unwrap();
+        host.insert(&s.pose, &s.beams).unwrap();
     }
     let (rw, rh) = (r.map.width as i64, r.map.height as i64);
     let stitched = |bx: i64, by: i64| {
@@ -166,4 +181,76 @@ fn a_building_larger_than_the_window_stitches_to_the_unbounded_map_in_qemu() {
         "window: {} shifts, {} tiles out, {} restored; worst scan step {} instructions",
         last.shifts, last.tiles_out, last.tiles_restored, r.figures.insert_per_scan_max
     );
+}
+
+/// The robot loop (LD06 turns on the lidar's UART, poses on the link) with scans 4 m apart,
+/// farther than the margin rule allows (margin 112 − reach 61 cells = 2.55 m): each turn that
+/// shifts the window reaches tiles that just entered. With `window_hold` the robot holds that
+/// turn until the host has sent them back and said `Resume`; the stitched map must still equal
+/// the unbounded one, bit-exact with the replay.
+#[test]
+fn turns_held_for_the_hosts_tiles_stitch_steps_longer_than_the_margin_in_qemu() {
+    if !ogm_tests::firmware_available(
+        "turns_held_for_the_hosts_tiles_stitch_steps_longer_than_the_margin_in_qemu",
+    ) {
+        return;
+    }
+    let config = RunConfig::ROBOT
+        .with_max_range_mm(MAX_RANGE)
+        .with_window_margin_cells(112)
+        .with_window_hold(true)
+        .with_correction(ogm_core::config::PoseCorrection::Off)
+        .with_budget(Budget::Fixed { updates: 300 });
+    let scans = boxes::scans(
+        &boxes::building(22_000.0, 50, true),
+        &[
+            (6.4, 6.4),
+            (25.0, 6.8),
+            (25.5, 16.0),
+            (6.0, 16.5),
+            (6.2, 7.0),
+        ],
+        4.0,
+        MAX_RANGE,
+    );
+    let (r, events, host, config) =
+        run_turns_online(&config, &scans, Duration::from_secs(120), true).expect("run");
+    print_report(&r);
+    assert_eq!(r.exit_code, Some(0), "firmware exit status (log {:?})", r.log);
+    assert!(
+        r.identical(),
+        "firmware vs host replay of the link as sent:\n{}",
+        r.mismatches.join("\n")
+    );
+    let last = events
+        .iter()
+        .rev()
+        .find_map(|e| match e {
+            DeviceEvent::Window(w) => Some(*w),
+            _ => None,
+        })
+        .expect("a Window at the end");
+    assert!(last.shifts >= 6 && last.tiles_restored >= 10, "{last:?}");
+    assert_eq!(
+        (last.beams_clipped, last.restore_refused, last.holds_unanswered),
+        (0, 0, 0),
+        "{last:?}"
+    );
+    assert_eq!(last.turns_held, last.shifts, "{last:?}");
+    let online = host.building().expect("a Hello").render();
+    let (d, known) = differ_turns(&config, &scans, &online);
+    assert!(known > 10_000, "mapped cells: {known}");
+    assert_eq!(d, 0, "stitched vs unbounded: {d} of {known} cells differ");
+}
+
+/// [`differ`] for scans sent as LD06 turns (the beams as the firmware's turns hold them).
+fn differ_turns(config: &RunConfig, scans: &[ScanRecord], r: &BuildingRender) -> (usize, usize) {
+    let read: Vec<ScanRecord> = scans
+        .iter()
+        .map(|s| {
+            let (pose, beams) = host_sim::firmware::log::firmware_scan(s, config.mount.heading);
+            ScanRecord { pose, beams }
+        })
+        .collect();
+    differ_read(config, &read, r)
 }

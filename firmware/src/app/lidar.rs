@@ -7,7 +7,7 @@ use ogm_core::config::{LidarModel, RunConfig};
 use ogm_core::lidar::ld06::Ld06Parser;
 #[cfg(feature = "rplidar")]
 use ogm_core::lidar::rplidar::{self, RplidarParser};
-use ogm_core::lidar::turn::{Turn, Turns};
+use ogm_core::lidar::turn::{Taken, Turn, Turns};
 use ogm_core::session::Storage;
 use ogm_core::wire::LidarCounters;
 use ogm_core::ScanBuf;
@@ -128,7 +128,13 @@ impl<S: Storage> App<'_, S> {
                 if state.session.is_none() {
                     return *before_config = before_config.saturating_add(1);
                 }
-                let mut f = |t: Turn<'_>| done = Some(state.process_turn(link, platform, &t));
+                let mut f = |t: Turn<'_>| {
+                    let taken = state.process_turn(link, platform, &t);
+                    if taken == Taken::Taken {
+                        done = Some(t.seq);
+                    }
+                    taken
+                };
                 match u {
                     Unit::Packet(p) => turns.push_packet(&p, turn, &mut f),
                     #[cfg(feature = "rplidar")]

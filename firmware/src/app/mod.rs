@@ -74,6 +74,7 @@ impl<'a, S: Storage> App<'a, S> {
                 seq: 0,
                 totals: Totals::default(),
                 stack_config: 0,
+                hold: None,
             },
         }
     }
@@ -125,9 +126,32 @@ impl<'a, S: Storage> App<'a, S> {
     }
 
     /// Whether the link may be read: a pose from it would not push out one the lidar's packets
-    /// still need (see [`Turns::wants_poses`]).
+    /// still need (see [`Turns::wants_poses`]), or a turn is held for the host's answer.
     pub fn wants_link(&self) -> bool {
-        self.lidar.turns.wants_poses()
+        self.state.hold.is_some() || self.lidar.turns.wants_poses()
+    }
+
+    /// Maps a turn held for longer than [`HOLD_US`] without the host's answer; returns its
+    /// number if it did. The main loop calls it every time round.
+    pub fn check_hold<W: Write, P: Platform>(&mut self, link: &mut W, platform: &mut P) -> Fed {
+        let Some(h) = self.state.hold else {
+            return Fed::Nothing;
+        };
+        let limit = (HOLD_US * u64::from(P::TICK_HZ) / 1_000_000).min(u64::from(u32::MAX)) as u32;
+        if platform.now().wrapping_sub(h.since) < limit {
+            return Fed::Nothing;
+        }
+        warn!(
+            "turn {=u32}: no answer from the host, mapped without it",
+            h.seq
+        );
+        match self.state.end_hold(&mut self.lidar, link, platform, false) {
+            Some(seq) => {
+                self.report(link);
+                Fed::Scan(seq)
+            }
+            None => Fed::Nothing,
+        }
     }
 
     /// The lidar the settings just named, once: the main loop sets its UART's baud rate and
@@ -238,7 +262,27 @@ pub(crate) struct State<'a, S: Storage> {
     seq: u32,
     totals: Totals,
     stack_config: u32,
+    /// The lidar turn held for the host's answer to a window shift, if any.
+    hold: Option<Hold>,
 }
+
+/// A lidar turn held after its window shift ([`RunConfig::window_hold`]): matched, the shift
+/// made and announced, waiting for the host's stored tiles and `Resume`.
+#[derive(Clone, Copy)]
+struct Hold {
+    seq: u32,
+    prepared: scan::Prepared,
+    /// When the hold began, board ticks ([`HOLD_US`] later it ends unanswered).
+    since: u32,
+    /// `Some` once released: whether the host answered.
+    answered: Option<bool>,
+}
+
+/// The longest a turn waits for the host's answer to a window shift, µs: a host that sends
+/// the tiles back at 921 600 baud needs ~0.5 s for a shift's 64 tiles; past this the robot
+/// maps without them (counted in `WindowReport::holds_unanswered`). The lidar waits in the
+/// turn queue (~140 ms of LD06) and the UART's ring meanwhile.
+pub const HOLD_US: u64 = 1_000_000;
 
 /// What one link step asks of the main loop.
 #[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]

@@ -5,14 +5,15 @@
 use embedded_io::Write;
 use ogm_core::config::Budget;
 use ogm_core::lidar::link::Step;
-use ogm_core::lidar::turn::Turn;
+use ogm_core::lidar::turn::{Taken, Turn};
+use ogm_core::localize::Correction;
 use ogm_core::session::{Session, Storage};
 use ogm_core::wire::{self, DeviceMsg, ErrorCode, IdleReport, ScanRanges, ScanReport};
 use ogm_core::Pose;
 
 use super::lidar::Lidar;
 use super::stream::mark_dirty;
-use super::{After, State, EDGE};
+use super::{After, Hold, State, EDGE};
 use crate::platform::{Platform, Work};
 
 /// Sampler updates in the first call of a time budget, and the fewest in any call after it.
@@ -36,9 +37,18 @@ impl<S: Storage> State<'_, S> {
             self.report_error(link, ErrorCode::NoConfig, 0);
             return After::Nothing;
         }
+        // A held turn waits for the host's `Resume`; a pose the track cannot keep without
+        // forgetting one the lidar's packets still need means the host is not answering.
+        if self.hold.is_some() && !lidar.turns.wants_poses() {
+            self.release_hold(false);
+        }
         let mut after = After::Nothing;
         let pushed = lidar.turns.push_pose(t_us, pose, lidar.turn, |turn| {
-            after = After::Scan(self.process_turn(link, platform, &turn));
+            let taken = self.process_turn(link, platform, &turn);
+            if taken == Taken::Taken {
+                after = After::Scan(turn.seq);
+            }
+            taken
         });
         if pushed.is_err() {
             let ms = u32::try_from(t_us / 1000).unwrap_or(u32::MAX);
@@ -47,20 +57,119 @@ impl<S: Storage> State<'_, S> {
         after
     }
 
-    /// Maps a lidar turn like a host's scan; returns its number.
+    /// Maps a lidar turn like a host's scan, or holds it ([`Taken::Held`]): with
+    /// [`ogm_core::config::RunConfig::window_hold`], a turn whose pose shifts the window waits,
+    /// matched but unmapped, until the host has sent the entering tiles back (`Resume`,
+    /// [`State::release_hold`]); [`ogm_core::lidar::turn::Turns`] then hands it out again.
     pub(super) fn process_turn<W: Write, P: Platform>(
         &mut self,
         link: &mut W,
         platform: &mut P,
         turn: &Turn<'_>,
-    ) -> u32 {
+    ) -> Taken {
+        if let Some(h) = self.hold {
+            if h.seq == turn.seq {
+                let Some(answered) = h.answered else {
+                    return Taken::Held;
+                };
+                self.hold = None;
+                if let Some(m) = self.session.as_deref_mut() {
+                    m.count_held_turn(answered);
+                }
+                // Its period starts now: the wait was not the sampler's.
+                let now = platform.now();
+                let prepared = Prepared {
+                    t0: now.wrapping_sub(ticks(h.prepared.t0, h.prepared.tm)),
+                    tm: now,
+                    ..h.prepared
+                };
+                self.map_scan(link, platform, turn, prepared);
+                return Taken::Taken;
+            }
+            // `Turns` hands out the held turn until it is taken; another one means the turns
+            // started over (new settings): the hold is void.
+            self.hold = None;
+        }
         self.seq = turn.seq;
-        self.process_scan(link, platform, turn);
-        turn.seq
+        let prepared = self.prepare_scan(link, platform, turn);
+        let holds = self
+            .session
+            .as_deref()
+            .is_some_and(|m| m.config().window_hold);
+        if prepared.shifted && holds {
+            self.hold = Some(Hold {
+                seq: turn.seq,
+                prepared,
+                since: platform.now(),
+                answered: None,
+            });
+            info!("turn {=u32}: held for the host's tiles", turn.seq);
+            return Taken::Held;
+        }
+        self.map_scan(link, platform, turn, prepared);
+        Taken::Taken
+    }
+
+    /// Lets the held turn be mapped the next time it is handed out (`answered`: the host's
+    /// `Resume` came).
+    pub(super) fn release_hold(&mut self, answered: bool) {
+        if let Some(h) = &mut self.hold {
+            h.answered.get_or_insert(answered);
+        }
+    }
+
+    /// Ends a hold and maps the held turn now, with whatever came back (`answered`: because
+    /// of the host's `Resume`); returns its number.
+    pub(super) fn end_hold<W: Write, P: Platform>(
+        &mut self,
+        lidar: &mut Lidar<'_>,
+        link: &mut W,
+        platform: &mut P,
+        answered: bool,
+    ) -> Option<u32> {
+        self.hold?;
+        self.release_hold(answered);
+        let mut mapped = None;
+        lidar.turns.retry(lidar.turn, |turn| {
+            let taken = self.process_turn(link, platform, &turn);
+            if taken == Taken::Taken {
+                mapped = Some(turn.seq);
+            }
+            taken
+        });
+        mapped
     }
 
     /// One step from the link.
     pub(super) fn on_step<W: Write, P: Platform>(
+        &mut self,
+        step: Step<'_>,
+        lidar: &mut Lidar<'_>,
+        link: &mut W,
+        platform: &mut P,
+    ) -> After {
+        // A held turn waits through poses, stored tiles and damaged frames; anything else from
+        // the host comes after it (`Resume`: the host has answered).
+        let mut after = After::Nothing;
+        match &step {
+            Step::Host(wire::HostMsg::Pose { .. } | wire::HostMsg::Restore { .. })
+            | Step::Error(_) => {}
+            Step::Host(wire::HostMsg::Resume) => {
+                return self
+                    .end_hold(lidar, link, platform, true)
+                    .map_or(After::Nothing, After::Scan);
+            }
+            _ => {
+                if let Some(seq) = self.end_hold(lidar, link, platform, false) {
+                    after = After::Scan(seq);
+                }
+            }
+        }
+        after.max(self.on_host_step(step, lidar, link, platform))
+    }
+
+    /// One step from the link, with no turn held.
+    fn on_host_step<W: Write, P: Platform>(
         &mut self,
         step: Step<'_>,
         lidar: &mut Lidar<'_>,
@@ -103,6 +212,7 @@ impl<S: Storage> State<'_, S> {
                 After::Nothing
             }
             Step::Host(wire::HostMsg::Finish) => After::Finish,
+            Step::Host(wire::HostMsg::Resume) => After::Nothing, // nothing held
             Step::Host(wire::HostMsg::Idle { seq, period_us }) => {
                 self.idle(link, platform, seq, period_us);
                 After::Idle(seq)
@@ -195,12 +305,24 @@ impl<S: Storage> State<'_, S> {
         platform: &mut P,
         scan: &Turn<'_>,
     ) {
+        let prepared = self.prepare_scan(link, platform, scan);
+        self.map_scan(link, platform, scan, prepared);
+    }
+
+    /// What comes before a scan is mapped: its overflow counted, its pose corrected, and the
+    /// rolling window moved if the corrected pose needs it.
+    fn prepare_scan<W: Write, P: Platform>(
+        &mut self,
+        link: &mut W,
+        platform: &mut P,
+        scan: &Turn<'_>,
+    ) -> Prepared {
         let Turn {
             seq,
             ref pose,
-            t_us,
             beams,
             overflow,
+            ..
         } = *scan;
         if overflow > 0 {
             self.counters.beams_overflowed =
@@ -209,7 +331,7 @@ impl<S: Storage> State<'_, S> {
         }
         let t0 = platform.now();
         // The pose correction first (the map before this scan; `pose` is odometry): a rolling
-        // window follows the corrected pose, and the insert below maps at it.
+        // window follows the corrected pose, and the insert maps at it.
         let correction = self.session.as_deref_mut().map(|m| m.correct(pose, beams));
         let tm = platform.now();
         let corrected = correction.map_or(*pose, |c| c.pose);
@@ -219,8 +341,8 @@ impl<S: Storage> State<'_, S> {
             .session
             .as_deref_mut()
             .and_then(|m| m.check_shift(&corrected, EDGE as u16));
-        if let Some(shift) = shift {
-            self.shift_window(link, &shift);
+        if let Some(shift) = &shift {
+            self.shift_window(link, shift);
             let t = ticks(tm, platform.now());
             self.totals.shifts += 1;
             self.totals.max_shift_ticks = self.totals.max_shift_ticks.max(t);
@@ -229,10 +351,38 @@ impl<S: Storage> State<'_, S> {
                 seq, shift.dx, shift.dy, t
             );
         }
+        Prepared {
+            correction,
+            t0,
+            tm,
+            shifted: shift.is_some(),
+        }
+    }
+
+    /// Maps a prepared scan: log-odds update with seeding, ray store, sampler for the rest of
+    /// its period, report, tiles.
+    fn map_scan<W: Write, P: Platform>(
+        &mut self,
+        link: &mut W,
+        platform: &mut P,
+        scan: &Turn<'_>,
+        prepared: Prepared,
+    ) {
+        let Turn {
+            seq,
+            ref pose,
+            t_us,
+            beams,
+            overflow,
+        } = *scan;
+        let Prepared {
+            correction, t0, tm, ..
+        } = prepared;
         let Some(m) = self.session.as_deref_mut() else {
             self.report_error(link, ErrorCode::NoConfig, 0);
             return;
         };
+        let corrected = correction.map_or(*pose, |c| c.pose);
         let mut report = ScanReport {
             seq,
             pose: corrected,
@@ -299,6 +449,17 @@ impl<S: Storage> State<'_, S> {
         self.send(link, &DeviceMsg::Ranges(ScanRanges { seq, data: &ranges }));
         self.stream_tiles(link, false);
     }
+}
+
+/// A scan matched and its window shift made, not yet mapped.
+#[derive(Clone, Copy)]
+pub(super) struct Prepared {
+    correction: Option<Correction>,
+    /// When the scan was complete (its sampler period counts from here), and when its match
+    /// was done, board ticks.
+    t0: u32,
+    tm: u32,
+    shifted: bool,
 }
 
 fn ticks(t0: u32, t1: u32) -> u32 {

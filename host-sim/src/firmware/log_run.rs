@@ -157,11 +157,16 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         .with_max_range_mm(setup.mapper.max_range_mm)
         .with_seed(args.seed)
         .with_budget(budget);
+    // A host that sends tiles back answers every shift: the robot holds the turn that shifted
+    // until then, so a step of any length maps onto the tiles it comes back to.
+    let restore = args.window_margin > 0 && !args.no_restore;
     let config = log_config(
         RunConfig {
             tiles_per_scan: args.tiles_per_scan,
             count_tiles_per_scan: args.count_tiles_per_scan,
-            ..base.with_window_margin_cells(args.window_margin)
+            ..base
+                .with_window_margin_cells(args.window_margin)
+                .with_window_hold(restore)
         },
         mount_heading(&scans),
     );
@@ -177,7 +182,6 @@ pub fn run_log(args: &FirmwareArgs, path: &Path, experiment: u8) -> anyhow::Resu
         encoding.clipped_ranges,
         sensor
     );
-    let restore = args.window_margin > 0 && !args.no_restore;
     let (firmware, stream, link) = if args.window_margin > 0 {
         run_input_online(args, &config, &input, restore)?
     } else {

@@ -23,7 +23,7 @@ use super::args::FirmwareArgs;
 use super::compare::{compare, Checker};
 use super::groups::{decode_captured, Groups};
 use super::input::scan_packets;
-use super::qemu::{build_elf, repo_root, run_qemu_paced, Paced, Step};
+use super::qemu::{build_elf, repo_root, run_qemu_paced, Answer, Paced, Step};
 use super::replay::{replay_fixed, HostMemory, HostPlatform, FIRMWARE_SIZES};
 use super::report::FirmwareReport;
 use super::robot::{Line, RobotInput};
@@ -34,6 +34,8 @@ use crate::sim::explore::ScanRecord;
 pub struct OnlineHost {
     building: Option<BuildingMap>,
     restore: bool,
+    /// Shifts the last `Window` reported.
+    shifts: u32,
     /// `Restore` parts sent.
     pub parts_sent: u64,
 }
@@ -44,13 +46,15 @@ impl OnlineHost {
         OnlineHost {
             building: None,
             restore,
+            shifts: 0,
             parts_sent: 0,
         }
     }
 
-    /// Takes one event of the robot's stream; returns the frames to send back (the `Restore`
-    /// parts of the stored tiles a `Window` brings back into the window).
-    pub fn answer(&mut self, e: &DeviceEvent) -> Vec<u8> {
+    /// Takes one event of the robot's stream; returns the frames to send back: for a `Window`
+    /// that shifted, the `Restore` parts of the stored tiles it brings back into the window
+    /// and `Resume`, at once (a robot with `RunConfig::window_hold` waits for them).
+    pub fn answer(&mut self, e: &DeviceEvent) -> Answer {
         match e {
             DeviceEvent::Hello(h) => {
                 self.building = Some(BuildingMap::new(
@@ -65,19 +69,23 @@ impl OnlineHost {
                 }
             }
             DeviceEvent::Window(w) => {
+                let shifted = w.shifts > self.shifts;
+                self.shifts = w.shifts;
                 if let Some(b) = &mut self.building {
                     b.note_window(*w);
-                    if self.restore {
+                    if self.restore && shifted {
                         let tiles = b.entered().to_vec();
                         let msgs = b.restore_msgs(&tiles);
                         self.parts_sent += msgs.len() as u64;
-                        return msgs.iter().flat_map(host_frame).collect();
+                        let mut bytes: Vec<u8> = msgs.iter().flat_map(host_frame).collect();
+                        bytes.extend(host_frame(&HostMsg::Resume));
+                        return Answer { bytes, now: true };
                     }
                 }
             }
             _ => {}
         }
-        Vec::new()
+        Answer::default()
     }
 
     /// The building as the host holds it.
@@ -181,14 +189,24 @@ pub(super) fn host_link(
     let mut answers: Vec<(u32, Vec<u8>)> = Vec::new();
     let mut answer = Vec::new();
     for step in steps {
-        // Everything streamed so far, through the host.
-        for e in decoder.push(&out[read..]).into_iter().flatten() {
-            answer.extend(host.answer(&e));
-            if let DeviceEvent::Scan(r) = e {
-                answers.push((r.seq, std::mem::take(&mut answer)));
+        // Everything streamed so far, through the host; answers due at once are fed at once
+        // (and what they make the robot stream is read in turn).
+        while read < out.len() {
+            let mut now = Vec::new();
+            for e in decoder.push(&out[read..]).into_iter().flatten() {
+                let a = host.answer(&e);
+                answer.extend(a.bytes);
+                if a.now {
+                    now.append(&mut answer);
+                }
+                if let DeviceEvent::Scan(r) = e {
+                    answers.push((r.seq, std::mem::take(&mut answer)));
+                }
             }
+            read = out.len();
+            sent.extend_from_slice(&now);
+            app.feed(&now, &mut out, &mut platform);
         }
-        read = out.len();
         if let Some(s) = step.after {
             // The answers to every report up to `s`, in order, as the paced writer sends them.
             let due = answers.iter().take_while(|(seq, _)| *seq <= s).count();
@@ -266,6 +284,44 @@ pub fn run_scans_online(
     Ok((report, events, host))
 }
 
+/// Scans sent as a robot sends them — LD06 turns on the lidar's UART, their poses on the link
+/// (`host-sim firmware --log`'s encoding, [`super::log::log_input`]) — through the firmware in
+/// QEMU with an online host (sending stored tiles back if `restore`), paced; checked bit-exact
+/// against the host replay of the link as sent. `config` gets the lidar's mount from the
+/// scans. Returns the report, the decoded stream, the host and the settings as sent.
+pub fn run_turns_online(
+    config: &RunConfig,
+    scans: &[ScanRecord],
+    timeout: Duration,
+    restore: bool,
+) -> anyhow::Result<(FirmwareReport, Vec<DeviceEvent>, OnlineHost, RunConfig)> {
+    let config = super::log::log_config(*config, super::log::mount_heading(scans));
+    let (input, _) = super::log::log_input(scans, &config)?;
+    let qemu_dir = repo_root().join("firmware/target/qemu");
+    std::fs::create_dir_all(&qemu_dir)?;
+    let elf = build_elf(&qemu_dir.join("host-sim-build.log"))?;
+    let log = qemu_dir.join("host-sim-firmware.log");
+    let link: Vec<u8> = [&input.link[..], &input.finish[..]].concat();
+    let steps = robot_steps(&input);
+    let mut host = OnlineHost::new(restore);
+    let (run, sent) = run_qemu_paced(
+        &elf,
+        Paced {
+            link: &link,
+            lidar: Some(&input.lidar),
+            steps: &steps,
+            answers: None,
+            host: Some(Box::new(|e: &DeviceEvent| host.answer(e))),
+        },
+        timeout,
+        Some(&log),
+    )
+    .context("the firmware in QEMU")?;
+    let report = checked_robot_report(&config, &input, &sent, &run, Some(log), |_| ());
+    let (events, _) = decode_captured(&run.stream);
+    Ok((report, events, host, config))
+}
+
 /// A robot run's two serial lines through the firmware in QEMU with an online host (sending
 /// stored tiles back if `restore`), paced; checked bit-exact against the host replay of the
 /// link as sent (or, with `--host-only`, that replay alone, paced on the host). Returns the
@@ -313,6 +369,7 @@ pub(super) fn run_input_online(
 mod tests {
     use ogm_core::config::Budget;
     use ogm_core::session::{Owned, Session, Sizes};
+    use ogm_core::wire::WindowReport;
     use ogm_field::stream::{BuildingMap, DeviceEvent};
 
     use super::super::log::{firmware_scan, log_config, log_input, mount_heading};
@@ -320,15 +377,16 @@ mod tests {
     use crate::sim::boxes;
 
     /// The robot loop (lidar on its own UART, poses on the link) paced on the host with an
-    /// online host: a path east and back west through a 30 m building, so the west region
-    /// leaves the window and comes back. The replay of the link as sent, stitched, equals an
-    /// unbounded map of the same scans; without tiles sent back it does not.
-    #[test]
-    fn the_paced_robot_loop_gets_its_tiles_back_before_it_maps_there() {
+    /// online host (sending tiles back if `restore`, the robot holding shifting turns if
+    /// `hold`), scans every `spacing` m on a path east and back west through a 30 m building,
+    /// so the west region leaves the window and comes back. Returns the robot's last `Window`,
+    /// the `Restore` parts sent, and the cells where the stitched replay of the link as sent
+    /// differs from an unbounded map of the same scans.
+    fn paced(spacing: f64, restore: bool, hold: bool) -> (WindowReport, u64, usize) {
         let scans = boxes::scans(
             &boxes::building(14_000.0, 30, false),
             &[(6.4, 6.4), (24.0, 7.0), (5.0, 7.4)],
-            0.3,
+            spacing,
             3000,
         );
         // The poses as sent (`host-sim firmware --log`'s default): without tiles sent back a
@@ -336,73 +394,96 @@ mod tests {
         let base = RunConfig::ROBOT
             .with_max_range_mm(3000)
             .with_window_margin_cells(112)
+            .with_window_hold(hold)
             .with_budget(Budget::Fixed { updates: 20 })
             .with_correction(ogm_core::config::PoseCorrection::Off);
         let config = log_config(base, mount_heading(&scans));
         let (input, _) = log_input(&scans, &config).unwrap();
         let steps = robot_steps(&input);
         let link = [&input.link[..], &input.finish[..]].concat();
-        let mut differ_by_mode = Vec::new();
-        for restore in [true, false] {
-            let mut host = OnlineHost::new(restore);
-            let sent = host_link(&link, &input.lidar, &steps, &mut host, 20);
-            assert_eq!(
-                sent.len() > link.len(),
-                restore,
-                "answers only with restore"
-            );
-            let (_, events) = replay_fixed(&sent, &input.lidar, 20).unwrap();
-            let mut b = BuildingMap::new(256, 256, 16);
-            let mut last = None;
-            for e in &events {
-                match e {
-                    DeviceEvent::Window(w) => {
-                        b.note_window(*w);
-                        last = Some(*w);
-                    }
-                    DeviceEvent::Tile(t) => b.apply(t).unwrap(),
-                    _ => {}
+        let mut host = OnlineHost::new(restore);
+        let sent = host_link(&link, &input.lidar, &steps, &mut host, 20);
+        assert_eq!(
+            sent.len() > link.len(),
+            restore,
+            "answers only with restore"
+        );
+        let (_, events) = replay_fixed(&sent, &input.lidar, 20).unwrap();
+        let mut b = BuildingMap::new(256, 256, 16);
+        let mut last = None;
+        for e in &events {
+            match e {
+                DeviceEvent::Window(w) => {
+                    b.note_window(*w);
+                    last = Some(*w);
                 }
+                DeviceEvent::Tile(t) => b.apply(t).unwrap(),
+                _ => {}
             }
-            let w = last.expect("a final Window");
+        }
+        let w = last.expect("a final Window");
+        // The unbounded map of the same scans, as the firmware's turns hold them.
+        let (x0, y0, gw, gh) = (-128i32, -128i32, 896u16, 544u16);
+        let mut s = Session::new(
+            config
+                .with_window_margin_cells(0)
+                .with_origin_mm(x0 * 50, y0 * 50),
+            Owned::<u8>::buffers(&Sizes::grid(gw, gh)),
+        )
+        .unwrap();
+        for scan in &scans {
+            let (pose, beams) = firmware_scan(scan, config.mount.heading);
+            s.insert(&pose, &beams).unwrap();
+        }
+        let r = b.render();
+        let (rw, rh) = (r.map.width as i64, r.map.height as i64);
+        let mut differ = 0;
+        for (i, l) in s.log_odds().iter().enumerate() {
+            let bx = i64::from(x0) + (i % usize::from(gw)) as i64 - r.x0;
+            let by = i64::from(y0) + (i / usize::from(gw)) as i64 - r.y0;
+            let got = if (0..rw).contains(&bx) && (0..rh).contains(&by) {
+                r.map.log_odds[(by * rw + bx) as usize]
+            } else {
+                0
+            };
+            differ += usize::from(got != l.0);
+        }
+        (w, host.parts_sent, differ)
+    }
+
+    /// Scans 0.3 m apart (within the margin rule): tiles sent back make the stitched map
+    /// exact, held turns or not; without them the host's merge is off where a clamp was hit.
+    #[test]
+    fn the_paced_robot_loop_gets_its_tiles_back_before_it_maps_there() {
+        for hold in [false, true] {
+            let (w, parts, differ) = paced(0.3, true, hold);
             assert!(w.shifts >= 4, "{w:?}");
             assert_eq!((w.restore_refused, w.beams_clipped), (0, 0), "{w:?}");
-            if restore {
-                assert!(w.tiles_restored > 10, "{w:?}");
-                assert_eq!(host.parts_sent, 12 * u64::from(w.tiles_restored));
-            } else {
-                assert_eq!(w.tiles_restored, 0);
-            }
-            // The unbounded map of the same scans, as the firmware's turns hold them.
-            let (x0, y0, gw, gh) = (-128i32, -128i32, 896u16, 544u16);
-            let mut s = Session::new(
-                config
-                    .with_window_margin_cells(0)
-                    .with_origin_mm(x0 * 50, y0 * 50),
-                Owned::<u8>::buffers(&Sizes::grid(gw, gh)),
-            )
-            .unwrap();
-            for scan in &scans {
-                let (pose, beams) = firmware_scan(scan, config.mount.heading);
-                s.insert(&pose, &beams).unwrap();
-            }
-            let r = b.render();
-            let (rw, rh) = (r.map.width as i64, r.map.height as i64);
-            let mut differ = 0;
-            for (i, l) in s.log_odds().iter().enumerate() {
-                let bx = i64::from(x0) + (i % usize::from(gw)) as i64 - r.x0;
-                let by = i64::from(y0) + (i / usize::from(gw)) as i64 - r.y0;
-                let got = if (0..rw).contains(&bx) && (0..rh).contains(&by) {
-                    r.map.log_odds[(by * rw + bx) as usize]
-                } else {
-                    0
-                };
-                differ += usize::from(got != l.0);
-            }
-            differ_by_mode.push(differ);
+            assert!(w.tiles_restored > 10, "{w:?}");
+            assert_eq!(parts, 12 * u64::from(w.tiles_restored));
+            assert_eq!(w.turns_held, if hold { w.shifts } else { 0 }, "{w:?}");
+            assert_eq!(w.holds_unanswered, 0, "{w:?}");
+            assert_eq!(differ, 0, "hold {hold}");
         }
-        // Tiles sent back: exact. Without: the host's merge, off only where a clamp was hit.
-        assert_eq!(differ_by_mode[0], 0);
-        assert!((1..200).contains(&differ_by_mode[1]), "{differ_by_mode:?}");
+        let (w, _, differ) = paced(0.3, false, false);
+        assert_eq!((w.tiles_restored, w.restore_refused), (0, 0), "{w:?}");
+        assert!((1..200).contains(&differ), "{differ}");
+    }
+
+    /// Scans 4 m apart, farther than the margin allows (112 − 61 = 51 cells = 2.55 m): the
+    /// turn that shifts reaches tiles that just entered. Mapped at once, it makes the robot
+    /// refuse them when they come back; held until the host has sent them (`window_hold`),
+    /// the stitched map is exact.
+    #[test]
+    fn a_turn_held_for_the_hosts_tiles_maps_steps_longer_than_the_margin_exactly() {
+        let (w, _, differ) = paced(4.0, true, false);
+        assert!(w.restore_refused > 0, "{w:?}");
+        assert!(differ > 100, "{differ}");
+        let (w, parts, differ) = paced(4.0, true, true);
+        assert!(w.shifts >= 4 && w.tiles_restored > 10, "{w:?}");
+        assert_eq!((w.restore_refused, w.beams_clipped), (0, 0), "{w:?}");
+        assert_eq!((w.turns_held, w.holds_unanswered), (w.shifts, 0), "{w:?}");
+        assert_eq!(parts, 12 * u64::from(w.tiles_restored));
+        assert_eq!(differ, 0);
     }
 }

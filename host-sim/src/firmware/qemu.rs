@@ -84,9 +84,26 @@ pub(super) struct Step {
 }
 
 /// An online host: sees every event the firmware streams, in order; what it returns is sent
-/// down the link at the next step that waits for a report (after the report it was made
-/// before).
-pub(super) type Host<'a> = Box<dyn FnMut(&DeviceEvent) -> Vec<u8> + 'a>;
+/// down the link after the report it was made before (at the latest before the next step
+/// that waits for that report), or at once if [`Answer::now`].
+pub(super) type Host<'a> = Box<dyn FnMut(&DeviceEvent) -> Answer + 'a>;
+
+/// What an online host sends back for one event of the robot's stream.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Answer {
+    /// Frames for the link.
+    pub bytes: Vec<u8>,
+    /// Send them (and everything answered before them) at once: the robot holds a turn until
+    /// they arrive (`RunConfig::window_hold`), so no report comes first.
+    pub now: bool,
+}
+
+/// What the reader hands the writer: the answers made up to report `seq`, or answers due at
+/// once.
+enum Due {
+    Report(u32, Vec<u8>),
+    Now(Vec<u8>),
+}
 
 /// A paced run's input: the link's and the lidar's bytes, the steps that write them, the
 /// request the sensor waits for (an RPLIDAR's `SCAN`), and the online host.
@@ -195,8 +212,8 @@ pub(super) fn run_qemu_paced(
     // `Uart::new`, which QEMU needs to start delivering input) and be lost: seen once in ~20
     // noisy-link runs as a lost first frame delimiter.
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
-    // Reports, each with the host's answers to the stream up to it.
-    let (report_tx, report_rx) = std::sync::mpsc::channel::<(u32, Vec<u8>)>();
+    // Reports, each with the host's answers to the stream up to it, and answers due at once.
+    let (report_tx, report_rx) = std::sync::mpsc::channel::<Due>();
     let Paced {
         link,
         lidar,
@@ -223,13 +240,14 @@ pub(super) fn run_qemu_paced(
                 }
                 let mut reported: Option<u32> = None;
                 for step in steps {
+                    // Answers already made go out first (a held turn waits for them).
+                    while let Ok(due) = report_rx.try_recv() {
+                        w.take(due, &mut reported)?;
+                    }
                     if let Some(s) = step.after {
                         while reported.is_none_or(|r| r < s) {
                             match report_rx.recv_timeout(pace_wait) {
-                                Ok((seq, bytes)) => {
-                                    w.write_link(&bytes)?;
-                                    reported = Some(reported.map_or(seq, |r| r.max(seq)));
-                                }
+                                Ok(due) => w.take(due, &mut reported)?,
                                 // The firmware stopped reporting: the run has failed, and the
                                 // reader's status says why.
                                 Err(_) => return Ok(()),
@@ -264,10 +282,14 @@ pub(super) fn run_qemu_paced(
                     }
                     for e in watch.push(&buf[..n]).into_iter().flatten() {
                         if let Some(h) = host.as_mut() {
-                            answer.extend(h(&e));
+                            let a = h(&e);
+                            answer.extend(a.bytes);
+                            if a.now {
+                                let _ = report_tx.send(Due::Now(std::mem::take(&mut answer)));
+                            }
                         }
                         if let DeviceEvent::Scan(r) = e {
-                            let _ = report_tx.send((r.seq, std::mem::take(&mut answer)));
+                            let _ = report_tx.send(Due::Report(r.seq, std::mem::take(&mut answer)));
                         }
                     }
                 }
@@ -343,6 +365,18 @@ struct Writer {
 }
 
 impl Writer {
+    /// Writes answers the reader handed over; a report's raises `reported`.
+    fn take(&mut self, due: Due, reported: &mut Option<u32>) -> std::io::Result<()> {
+        match due {
+            Due::Report(seq, bytes) => {
+                self.write_link(&bytes)?;
+                *reported = Some(reported.map_or(seq, |r| r.max(seq)));
+                Ok(())
+            }
+            Due::Now(bytes) => self.write_link(&bytes),
+        }
+    }
+
     fn write_link(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         self.sent.extend_from_slice(bytes);
         self.link.write_all(bytes)

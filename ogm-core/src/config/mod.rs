@@ -121,6 +121,15 @@ pub struct RunConfig {
     /// as [`PoseCorrection::Off`], the behaviour it then meant.
     #[serde(default = "no_correction")]
     pub correction: PoseCorrection,
+    /// The host answers every window shift (wire version 8): with a rolling window, the lidar
+    /// turn whose pose shifted the window is held, unmapped, until the host has sent back the
+    /// stored tiles that entered and then [`crate::wire::HostMsg::Resume`], so the turn maps
+    /// onto them however far the robot moved since the turn before. `false` (the default, and
+    /// what a settings file without it reads): the turn is mapped at once, and a tile it
+    /// reaches is refused when it comes back (the margin must then exceed the reach plus the
+    /// farthest step between turns). Lidar turns only; tunnelled scans are never held.
+    #[serde(default)]
+    pub window_hold: bool,
 }
 
 /// Whether the robot corrects its poses by scan-to-map matching ([`crate::localize`]).
@@ -264,6 +273,7 @@ impl RunConfig {
         lidar: LidarModel::Ld06,
         window_margin_cells: 0,
         correction: PoseCorrection::Off,
+        window_hold: false,
     };
 
     /// The robot's settings ([`Default`]; what the firmware runs with when no host configures
@@ -334,6 +344,16 @@ impl RunConfig {
     pub const fn with_window_margin_cells(self, cells: u16) -> Self {
         RunConfig {
             window_margin_cells: cells,
+            ..self
+        }
+    }
+
+    /// These settings with the robot holding a turn that shifts the window until the host
+    /// answers ([`RunConfig::window_hold`]).
+    #[must_use]
+    pub const fn with_window_hold(self, hold: bool) -> Self {
+        RunConfig {
+            window_hold: hold,
             ..self
         }
     }

@@ -309,8 +309,8 @@ pub enum Step<'s> {
     /// A host message other than the scan framing: [`HostMsg::Config`], [`HostMsg::Pose`] (for
     /// the lidar turns read on the robot's own UART, [`crate::lidar::turn::Turns`]),
     /// [`HostMsg::Idle`] (a repeat of the last period's frame is not delivered again),
-    /// [`HostMsg::Restore`] (a part of a stored tile, also inside an open scan) or
-    /// [`HostMsg::Finish`]. Never `ScanStart` or `ScanEnd`: those make a [`Step::Scan`].
+    /// [`HostMsg::Restore`] (a part of a stored tile, also inside an open scan),
+    /// [`HostMsg::Resume`] or [`HostMsg::Finish`]. Never `ScanStart` or `ScanEnd`: those make a [`Step::Scan`].
     Host(HostMsg),
     /// A complete scan.
     Scan {
@@ -454,9 +454,9 @@ impl LinkRx {
                 }
                 f(Step::Host(HostMsg::Finish));
             }
-            LinkEvent::Host(msg @ (HostMsg::Pose { .. } | HostMsg::Restore { .. })) => {
-                f(Step::Host(msg))
-            }
+            LinkEvent::Host(
+                msg @ (HostMsg::Pose { .. } | HostMsg::Restore { .. } | HostMsg::Resume),
+            ) => f(Step::Host(msg)),
             LinkEvent::Error(e) => f(Step::Error(e)),
         });
     }

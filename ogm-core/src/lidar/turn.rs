@@ -85,6 +85,29 @@ pub struct Turn<'s> {
     pub overflow: u32,
 }
 
+/// What the receiver of a finished [`Turn`] did with it.
+///
+/// A closure that returns `()` takes every turn (`From<()>`). One that returns
+/// [`Taken::Held`] keeps the turn where it is: the batch that began the next turn stays at the
+/// head of the queue, nothing of the next turn is placed, and the same turn is handed out
+/// again, unchanged, at the next [`Turns::push_pose`], [`Turns::push_packet`],
+/// [`Turns::push_node`] or [`Turns::retry`]. The firmware holds a turn this way while the host
+/// sends back the stored tiles a window shift brought in (`RunConfig::window_hold`); the lidar
+/// waits in the queue meanwhile ([`Turns::wants_packets`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Taken {
+    /// The turn was used; the next one begins.
+    Taken,
+    /// Hand the same turn out again later.
+    Held,
+}
+
+impl From<()> for Taken {
+    fn from((): ()) -> Self {
+        Taken::Taken
+    }
+}
+
 /// How a batch tells where a turn begins.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Mark {
@@ -262,12 +285,12 @@ impl Turns {
 
     /// A robot pose at `t_us` (lidar clock); places the packets it covers and hands out the
     /// turns they finish. A repeat of the newest pose is ignored.
-    pub fn push_pose<const N: usize>(
+    pub fn push_pose<const N: usize, T: Into<Taken>>(
         &mut self,
         t_us: u64,
         pose: Pose,
         scan: &mut ScanBuf<N>,
-        mut f: impl FnMut(Turn<'_>),
+        mut f: impl FnMut(Turn<'_>) -> T,
     ) -> Result<(), TrackError> {
         if let Some(last) = self.track.latest() {
             if last.t_us == t_us && last.pose == pose {
@@ -279,17 +302,17 @@ impl Turns {
             return Err(e);
         }
         bump(&mut self.counters.poses);
-        self.drain(scan, &mut f);
+        self.drain(scan, &mut |t| f(t).into());
         Ok(())
     }
 
     /// A lidar packet; places it (and those before it) as soon as the poses cover it and hands
     /// out the turns that finish.
-    pub fn push_packet<const N: usize>(
+    pub fn push_packet<const N: usize, T: Into<Taken>>(
         &mut self,
         packet: &Packet,
         scan: &mut ScanBuf<N>,
-        mut f: impl FnMut(Turn<'_>),
+        mut f: impl FnMut(Turn<'_>) -> T,
     ) {
         let raw = packet.timestamp_ms;
         let t_ms = match self.clock {
@@ -301,18 +324,18 @@ impl Turns {
         };
         self.clock = Some((raw, t_ms));
         self.enqueue(Batch::of_packet(packet, t_ms.saturating_mul(1000)));
-        self.drain(scan, &mut f);
+        self.drain(scan, &mut |t| f(t).into());
     }
 
     /// An RPLIDAR node ([`crate::lidar::rplidar`]); it joins the batch being filled, which is queued
     /// when it holds [`BATCH`] nodes or when a start-flagged node begins the next turn. Hands
     /// out the turns that finish. The node's time is the nodes taken before it × the sample
     /// period of [`Turns::configured`]'s settings.
-    pub fn push_node<const N: usize>(
+    pub fn push_node<const N: usize, T: Into<Taken>>(
         &mut self,
         node: &Node,
         scan: &mut ScanBuf<N>,
-        mut f: impl FnMut(Turn<'_>),
+        mut f: impl FnMut(Turn<'_>) -> T,
     ) {
         let t_us = self.nodes.saturating_mul(u64::from(self.sample_us));
         self.nodes = self.nodes.saturating_add(1);
@@ -339,7 +362,7 @@ impl Turns {
         if usize::from(b.len) >= BATCH {
             self.flush();
         }
-        self.drain(scan, &mut f);
+        self.drain(scan, &mut |t| f(t).into());
     }
 
     /// Queues the batch being filled.
@@ -357,10 +380,24 @@ impl Turns {
         let _ = self.queue.push_back(batch);
     }
 
-    /// Places every queued batch whose pose is known, in order. Not inlined: both `push_*`
-    /// call it, and one copy of it is enough flash.
+    /// Hands out a held turn again ([`Taken::Held`]) and places what waits behind it, as far as
+    /// the poses allow; nothing happens without a held turn or a batch to place.
+    pub fn retry<const N: usize, T: Into<Taken>>(
+        &mut self,
+        scan: &mut ScanBuf<N>,
+        mut f: impl FnMut(Turn<'_>) -> T,
+    ) {
+        self.drain(scan, &mut |t| f(t).into());
+    }
+
+    /// Places every queued batch whose pose is known, in order, until a finished turn is held.
+    /// Not inlined: every `push_*` calls it, and one copy of it is enough flash.
     #[inline(never)]
-    fn drain<const N: usize>(&mut self, scan: &mut ScanBuf<N>, f: &mut dyn FnMut(Turn<'_>)) {
+    fn drain<const N: usize>(
+        &mut self,
+        scan: &mut ScanBuf<N>,
+        f: &mut dyn FnMut(Turn<'_>) -> Taken,
+    ) {
         while let Some(q) = self.queue.front().copied() {
             let robot = if self.fixed {
                 Pose::default()
@@ -379,48 +416,55 @@ impl Turns {
                     }
                 }
             };
+            if self.place(&q, &self.mount.sensor_pose(&robot), scan, f) == Taken::Held {
+                return; // the batch stays first in the queue, the turn in `scan`
+            }
             self.queue.pop_front();
-            self.place(&q, &self.mount.sensor_pose(&robot), scan, f);
         }
     }
 
+    /// Places `q` at `sensor`; [`Taken::Held`] (nothing changed) if it begins a new turn and
+    /// the receiver holds the finished one.
     fn place<const N: usize>(
         &mut self,
         q: &Batch,
         sensor: &Pose,
         scan: &mut ScanBuf<N>,
-        f: &mut dyn FnMut(Turn<'_>),
-    ) {
+        f: &mut dyn FnMut(Turn<'_>) -> Taken,
+    ) -> Taken {
         let new_turn = match q.mark {
-            Mark::Start(start) => {
-                let new = self.last_start.is_none_or(|last| start < last);
-                self.last_start = Some(start);
-                new
-            }
+            Mark::Start(start) => self.last_start.is_none_or(|last| start < last),
             Mark::Flag(start) => start || self.open.is_none(),
         };
-        self.placed_us = Some(q.t_us);
         if new_turn {
-            if let Some((seq, pose, t_us)) = self.open.take() {
-                bump(&mut self.counters.turns);
-                f(Turn {
+            if let Some((seq, pose, t_us)) = self.open {
+                let turn = Turn {
                     seq,
                     pose,
                     t_us,
                     beams: scan.beams(),
                     overflow: scan.overflow(),
-                });
+                };
+                if f(turn) == Taken::Held {
+                    return Taken::Held;
+                }
+                bump(&mut self.counters.turns);
             }
             scan.clear();
             self.open = Some((self.next_seq, *sensor, q.t_us));
             self.next_seq = self.next_seq.wrapping_add(1);
         }
+        if let Mark::Start(start) = q.mark {
+            self.last_start = Some(start);
+        }
+        self.placed_us = Some(q.t_us);
         let Some((_, reference, _)) = self.open else {
-            return;
+            return Taken::Taken;
         };
         for b in q.beams() {
             scan.push(deskew(b, sensor, &reference));
         }
+        Taken::Taken
     }
 }
 
@@ -709,6 +753,53 @@ mod tests {
             let (b, cb) = run(&mixed, false, mount);
             assert_eq!(a, b, "lag {lag}: {cb:?}");
         }
+    }
+
+    #[test]
+    fn a_held_turn_comes_out_again_unchanged_and_nothing_behind_it_is_lost() {
+        let (mut ev, _) = drive(4);
+        by_time(&mut ev);
+        let mount = Mount::default();
+        let (want, _) = run(&ev, false, mount);
+        // The receiver holds turn 1 each time it is offered until `release`, which comes
+        // after every event (packets queue behind it, up to what the queue holds).
+        let mut t = Turns::new(mount, false);
+        let mut scan = ScanBuf::<1024>::new();
+        let mut got: Vec<Out> = Vec::new();
+        let mut offered = 0;
+        let mut release = false;
+        let mut f = |turn: Turn<'_>, release: bool, offered: &mut u32| {
+            if turn.seq == 1 && !release {
+                *offered += 1;
+                return Taken::Held;
+            }
+            got.push((turn.seq, turn.pose, turn.t_us, turn.beams.to_vec()));
+            Taken::Taken
+        };
+        let mut held_waiting = 0;
+        for (k, (is_pose, t_us, p, pk)) in ev.iter().enumerate() {
+            release = release || (offered > 0 && k >= 150);
+            let r = release;
+            if *is_pose {
+                let _ = t.push_pose(*t_us, *p, &mut scan, |x| f(x, r, &mut offered));
+            } else {
+                t.push_packet(pk, &mut scan, |x| f(x, r, &mut offered));
+            }
+            if offered > 0 && !release {
+                held_waiting = held_waiting.max(t.waiting());
+            }
+        }
+        t.retry(&mut scan, |x| f(x, true, &mut offered));
+        assert!(offered > 1, "offered {offered} times");
+        assert!(held_waiting > 10, "{held_waiting} batches waited");
+        assert_eq!(got, want);
+        assert_eq!(t.counters().packets_overflowed, 0);
+        // Nothing held: `retry` hands out nothing more.
+        let n = got.len();
+        t.retry(&mut scan, |x: Turn<'_>| {
+            got.push((x.seq, x.pose, x.t_us, x.beams.to_vec()))
+        });
+        assert_eq!(got.len(), n);
     }
 
     #[test]

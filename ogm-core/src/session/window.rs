@@ -235,6 +235,16 @@ impl<S: Storage> Session<S> {
         Ok(())
     }
 
+    /// Counts a lidar turn held after a shift ([`WindowReport::turns_held`]) and, if the host
+    /// did not answer it, in [`WindowReport::holds_unanswered`].
+    pub fn count_held_turn(&mut self, answered: bool) {
+        let r = &mut self.window.report;
+        r.turns_held = r.turns_held.saturating_add(1);
+        if !answered {
+            r.holds_unanswered = r.holds_unanswered.saturating_add(1);
+        }
+    }
+
     /// What [`Session::window`] will say once `shift` is applied (a device announces it
     /// before it streams the leaving tiles).
     pub fn window_after(&self, shift: &Shift) -> WindowReport {

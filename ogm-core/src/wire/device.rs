@@ -408,6 +408,12 @@ pub struct WindowReport {
     pub tiles_restored: u32,
     /// Stored tiles refused (outside the window, wrong size, already mapped).
     pub restore_refused: u32,
+    /// Lidar turns held after a shift until the host answered (version 8,
+    /// [`RunConfig::window_hold`](crate::config::RunConfig::window_hold)).
+    pub turns_held: u32,
+    /// Of those, turns mapped without the host's `Resume`: it did not come in time, or another
+    /// message came first.
+    pub holds_unanswered: u32,
 }
 
 detail_enum! {

@@ -231,6 +231,7 @@ mod tests {
             },
             window_margin_cells: u16::MAX,
             correction: crate::config::PoseCorrection::Match,
+            window_hold: true,
         }
     }
 

@@ -71,4 +71,8 @@ pub enum HostMsg {
         /// The rows' cells, row-major, as a [`super::Tile`] of `layer` carries them.
         data: RestoreData,
     },
+    /// Every stored tile the last `Window` brought back has been sent (version 8, appended): a
+    /// robot holding a lidar turn for them ([`RunConfig::window_hold`]) maps it now. Ignored
+    /// when nothing is held, so a host may send it after every `Window`.
+    Resume,
 }

@@ -191,6 +191,12 @@ impl Listener {
                         let msgs = map.restore_msgs(&tiles);
                         self.stats.tiles_sent_back += tiles.len() as u64;
                         self.outgoing.extend(msgs.iter().map(host_frame));
+                        // A robot with `window_hold` waits for this before it maps the turn
+                        // that shifted; one without ignores it.
+                        if w.shifts > self.stats.window.map_or(0, |p| p.shifts) {
+                            self.outgoing
+                                .push(host_frame(&ogm_core::wire::HostMsg::Resume));
+                        }
                     }
                     self.stats.revisits = Some(map.revisits().clone());
                 }
@@ -423,14 +429,15 @@ mod tests {
                 data,
             })));
         }
-        let window = |origin_x| {
+        let window = |origin_x, shifts| {
             frame(&DeviceMsg::Window(wire::WindowReport {
                 origin_x,
+                shifts,
                 ..wire::WindowReport::default()
             }))
         };
-        s.extend(window(32));
-        s.extend(window(0));
+        s.extend(window(32, 0));
+        s.extend(window(0, 1));
         for send_back in [true, false] {
             let mut l = Listener::new();
             l.set_send_back(send_back);
@@ -440,11 +447,12 @@ mod tests {
                 assert!(out.is_empty());
                 continue;
             }
-            // 8 log-odds and 4 estimate parts, decodable host frames carrying the stored cells.
-            assert_eq!(out.len(), 12);
+            // 8 log-odds and 4 estimate parts, decodable host frames carrying the stored cells,
+            // then `Resume` (the window shifted).
+            assert_eq!(out.len(), 13);
             assert_eq!(l.stats().tiles_sent_back, 1);
             let mut cells = Vec::new();
-            for f in &out {
+            for (i, f) in out.iter().enumerate() {
                 // Between its 0x00 delimiters.
                 let mut f: Vec<u8> = f.iter().copied().filter(|&b| b != 0).collect();
                 match wire::decode::<wire::HostMsg>(&mut f) {
@@ -459,6 +467,7 @@ mod tests {
                         layer: Layer::Counts,
                         ..
                     }) => {}
+                    Ok(wire::HostMsg::Resume) => assert_eq!(i, 12),
                     other => panic!("{other:?}"),
                 }
             }
