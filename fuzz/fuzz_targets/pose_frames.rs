@@ -21,7 +21,7 @@ use ogm_core::lidar::ld06::Ld06Parser;
 use ogm_core::lidar::ld06::{Packet, Point, POINTS};
 use ogm_core::lidar::link::{LinkRx, Step};
 use ogm_core::lidar::pose_track::Mount;
-use ogm_core::lidar::turn::{Turn, Turns};
+use ogm_core::lidar::turn::{Taken, Turn, Turns};
 use ogm_core::session::TileRestore;
 use ogm_core::session::{Owned, Session, Sizes};
 use ogm_core::wire::{self, HostMsg, Layer, MAX_HOST_FRAME};
@@ -67,6 +67,7 @@ enum Item {
         window_margin_cells: u16,
         /// Pose correction: the session's scan matcher on every scan.
         correction: bool,
+        window_hold: bool,
     },
     PaperConfig {
         origin_x_mm: i16,
@@ -91,6 +92,8 @@ enum Item {
         points: u32,
     },
     Finish,
+    /// `Resume`: the held turn (every third, below) is mapped.
+    Resume,
     Pose {
         t_us: u64,
         x_mm: i32,
@@ -190,6 +193,7 @@ fuzz_target!(|items: Vec<Item>| {
                 face_band,
                 window_margin_cells,
                 correction,
+                window_hold,
             } => frame(
                 &mut bytes,
                 &HostMsg::Config(RunConfig {
@@ -252,6 +256,7 @@ fuzz_target!(|items: Vec<Item>| {
                     } else {
                         PoseCorrection::Off
                     },
+                    window_hold,
                 }),
             ),
             Item::PaperConfig {
@@ -310,6 +315,7 @@ fuzz_target!(|items: Vec<Item>| {
                 },
             ),
             Item::Finish => frame(&mut bytes, &HostMsg::Finish),
+            Item::Resume => frame(&mut bytes, &HostMsg::Resume),
             Item::Pose {
                 t_us,
                 x_mm,
@@ -419,13 +425,19 @@ fuzz_target!(|items: Vec<Item>| {
     let mut turn_maps = 0u32;
     let mut asm = TileRestore::new();
     let mut restore_refusals = 0u32;
-    let map_turn = |m: &mut Option<Session<Owned<u8>>>, t: Turn<'_>, n: &mut u32| {
+    // Every third turn is held, as the firmware holds one for a window shift, until `Resume`
+    // (or the end of the input) releases it.
+    let map_turn = |m: &mut Option<Session<Owned<u8>>>, t: Turn<'_>, n: &mut u32, release: bool| {
         assert!(t.beams.len() <= MAX_BEAMS);
+        if t.seq % 3 == 1 && !release {
+            return Taken::Held;
+        }
         if let Some(m) = m.as_mut() {
             *n += 1;
             let _ = m.insert(&t.pose, t.beams);
             m.step(16);
         }
+        Taken::Taken
     };
     rx.feed(&bytes, &mut scan, |step| match step {
         Step::Host(HostMsg::Config(c)) => {
@@ -471,7 +483,12 @@ fuzz_target!(|items: Vec<Item>| {
         }
         Step::Host(HostMsg::Pose { t_us, pose }) => {
             let _ = turns.push_pose(t_us, pose, &mut turn_buf, |t| {
-                map_turn(&mut machine, t, &mut turn_maps)
+                map_turn(&mut machine, t, &mut turn_maps, false)
+            });
+        }
+        Step::Host(HostMsg::Resume) => {
+            turns.retry(&mut turn_buf, |t| {
+                map_turn(&mut machine, t, &mut turn_maps, true)
             });
         }
         Step::Host(HostMsg::Restore {
@@ -504,9 +521,12 @@ fuzz_target!(|items: Vec<Item>| {
     parser.feed(&bytes, |p| {
         if let Ok(p) = p {
             turns.push_packet(&p, &mut turn_buf, |t| {
-                map_turn(&mut machine, t, &mut turn_maps)
+                map_turn(&mut machine, t, &mut turn_maps, false)
             });
         }
+    });
+    turns.retry(&mut turn_buf, |t| {
+        map_turn(&mut machine, t, &mut turn_maps, true)
     });
     let tc = turns.counters();
     assert!(tc.turns <= tc.packets && turns.waiting() <= ogm_core::lidar::turn::QUEUE);

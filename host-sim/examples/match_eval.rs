@@ -90,6 +90,10 @@ struct Args {
     /// beams, 0.4 m/s).
     #[arg(long)]
     moving: bool,
+    /// With `--sim`: the simulated lidar's range noise σ, cells (default the paper's 3; `host-sim
+    /// firmware --sigma-cells`), the robot's settings made for it.
+    #[arg(long)]
+    sigma_cells: Option<f64>,
     /// With `--sim`: the tracking loop once more, with the mean error per scan; each scan's
     /// prediction and corrected pose against the truth, its verdict and quality unless
     /// `--quiet`.
@@ -315,6 +319,9 @@ fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
             sc.explore.max_stops = SimConfig::default().explore.max_stops * 25;
             sc.lidar.beams = 456;
         }
+        if let Some(sigma) = a.sigma_cells {
+            sc.lidar.sigma_cells = sigma;
+        }
         let sim = simulate(&world, &sc, seed)?;
         let truth: Vec<Pose> = sim.scans.iter().map(|s| s.pose).collect();
         // As `host-sim firmware --odometry-noise` drifts it (integer poses, step by step).
@@ -326,7 +333,11 @@ fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
         let scans = host_sim::firmware::odometry::with_odometry(&sim.scans, &arg, seed);
         let odometry: Vec<Pose> = scans.iter().map(|s| s.pose).collect();
         let range_mm = sim.mapper_config.max_range_mm;
-        let robot = RunConfig::ROBOT
+        let sensor = match a.sigma_cells {
+            Some(sigma) => RunConfig::ROBOT.with_sensor(sigma, 0.0)?,
+            None => RunConfig::ROBOT,
+        };
+        let robot = sensor
             .with_origin_mm(
                 (world.origin_m.0 * 1000.0).round() as i32,
                 (world.origin_m.1 * 1000.0).round() as i32,

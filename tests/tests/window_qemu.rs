@@ -216,7 +216,12 @@ fn turns_held_for_the_hosts_tiles_stitch_steps_longer_than_the_margin_in_qemu() 
     let (r, events, host, config) =
         run_turns_online(&config, &scans, Duration::from_secs(120), true).expect("run");
     print_report(&r);
-    assert_eq!(r.exit_code, Some(0), "firmware exit status (log {:?})", r.log);
+    assert_eq!(
+        r.exit_code,
+        Some(0),
+        "firmware exit status (log {:?})",
+        r.log
+    );
     assert!(
         r.identical(),
         "firmware vs host replay of the link as sent:\n{}",
@@ -232,7 +237,11 @@ fn turns_held_for_the_hosts_tiles_stitch_steps_longer_than_the_margin_in_qemu() 
         .expect("a Window at the end");
     assert!(last.shifts >= 6 && last.tiles_restored >= 10, "{last:?}");
     assert_eq!(
-        (last.beams_clipped, last.restore_refused, last.holds_unanswered),
+        (
+            last.beams_clipped,
+            last.restore_refused,
+            last.holds_unanswered
+        ),
         (0, 0, 0),
         "{last:?}"
     );

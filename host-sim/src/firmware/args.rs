@@ -56,6 +56,10 @@ pub struct FirmwareArgs {
     /// not only when stopped.
     #[arg(long)]
     pub moving: bool,
+    /// The simulated lidar's range noise σ, cells (default: the paper's 3); the robot's settings
+    /// are made for it (`RunConfig::with_sensor`).
+    #[arg(long)]
+    pub sigma_cells: Option<f64>,
     /// The robot loop: the lidar's LD06 bytes on the firmware's own UART (UART0) while the robot
     /// drives the simulated mission (`--moving`), its poses on the link at 25 Hz, stamped in the
     /// lidar's clock; the lidar sits 60 mm ahead of the robot's centre. Checks the map
@@ -170,6 +174,7 @@ impl Default for FirmwareArgs {
             soak_scans: None,
             timeout: 300,
             moving: false,
+            sigma_cells: None,
             robot: false,
             lidar: LidarArg::Ld06,
             pattern: None,

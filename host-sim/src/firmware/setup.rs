@@ -22,6 +22,9 @@ pub fn sim_config(args: &FirmwareArgs) -> SimConfig {
         // 4 500 points/s at 10 Hz, rounded up to whole 12-point LD06 packets.
         cfg.lidar.beams = 456;
     }
+    if let Some(sigma) = args.sigma_cells {
+        cfg.lidar.sigma_cells = sigma;
+    }
     cfg
 }
 
@@ -57,7 +60,13 @@ pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunC
         (world.origin_m.0 * 1000.0).round() as i32,
         (world.origin_m.1 * 1000.0).round() as i32,
     );
-    let robot = RunConfig::ROBOT
+    // The robot's settings made for the simulated sensor when it is not the paper's (no
+    // outliers: the simulated lidar has none).
+    let sensor = args
+        .sigma_cells
+        .and_then(|s| RunConfig::ROBOT.with_sensor(s, 0.0).ok());
+    let robot = sensor
+        .unwrap_or(RunConfig::ROBOT)
         .with_origin_mm(origin.0, origin.1)
         .with_max_range_mm(max_range_mm)
         .with_seed(args.seed)
