@@ -9,13 +9,14 @@
 //! (`--json FILE` writes the figures, `--help` lists the settings).
 //!
 //! `--sim 1,2,3,4,5 --odometry issue39 [--moving]`: instead of the logs, `host-sim firmware`'s
-//! simulated runs (σ = 3 cells) tracked with the robot's own settings (`RunConfig::match_config`
+//! simulated runs (σ = 3 cells, or `--sigma-cells S`) tracked with the robot's own settings (`RunConfig::match_config`
 //! on its face-band map; `--set` overrides them), a second a run; the pose error of odometry and
 //! of the corrected poses. Statistically the firmware's runs, not bit-exact with them (the
 //! firmware gets the scans through the LD06 encoding). `--per-scan [--oracle] [--quiet]`: each
 //! scan's prediction and corrected pose; with `--oracle` every scan is matched against the map
 //! made at the true poses, which separates the matcher's own error from the drift it feeds back
-//! into its map.
+//! into its map; `--fresh` (with `--odometry perfect`) also predicts every scan at its true
+//! pose: one match's error alone.
 
 use std::path::PathBuf;
 
@@ -106,6 +107,11 @@ struct Args {
     /// With `--per-scan`: only the mean error.
     #[arg(long)]
     quiet: bool,
+    /// With `--oracle`: every scan's prediction is its true pose (the tracker forgets its
+    /// correction; run with `--odometry perfect`), so the error is one match's alone, not the
+    /// walk of a chain of matches.
+    #[arg(long)]
+    fresh: bool,
 }
 
 fn odometry_model(a: &Args) -> anyhow::Result<OdometryModel> {
@@ -370,7 +376,14 @@ fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
             (m / n, mx, h / n, hx)
         };
         if a.per_scan {
-            per_scan(&scans, &truth, g, range_mm, &settings, (a.oracle, a.quiet))?;
+            per_scan(
+                &scans,
+                &truth,
+                g,
+                range_mm,
+                &settings,
+                (a.oracle, a.quiet, a.fresh),
+            )?;
         }
         let (o, m) = (err(&odometry), err(&t.poses));
         println!(
@@ -409,7 +422,7 @@ fn per_scan(
     g: ogm_core::GridGeometry,
     range_mm: u32,
     settings: &TrackSettings,
-    (oracle, quiet): (bool, bool),
+    (oracle, quiet, fresh): (bool, bool, bool),
 ) -> anyhow::Result<()> {
     use ogm_core::localize::{MapView, Tracker};
     use ogm_core::session::{Owned, Session, Sizes};
@@ -430,6 +443,9 @@ fn per_scan(
     let (mut pos, mut head) = (0.0f64, 0.0f64);
     for (k, (s, t)) in scans.iter().zip(truth).enumerate() {
         let map = MapView::new(session.log_odds(), session.geometry())?;
+        if oracle && fresh {
+            tracker.reset();
+        }
         let c = tracker.update(&map, &s.pose, &s.beams);
         let q = c.matched.map(|m| m.quality).unwrap_or_default();
         if !quiet {

@@ -604,8 +604,9 @@ mod tests {
         v.extend(&packets);
         damaged.extend(&packets);
         v.extend(end.repeat(3));
+        // The version byte, made another version (never 0: a zero would split the frame).
         let mut bad = end.clone();
-        bad[2] ^= 0x08;
+        bad[2] ^= 0x80;
         damaged.extend(bad);
         damaged.extend(end.repeat(2));
         for (bytes, errors) in [(&v, 0), (&damaged, 3)] {
