@@ -112,6 +112,11 @@ struct Args {
     /// walk of a chain of matches.
     #[arg(long)]
     fresh: bool,
+    /// With `--fresh`: predict every scan this far off its true pose instead, `DX:DY:DEG` (mm,
+    /// mm, degrees; the signs alternate from scan to scan), to see how much of an error one
+    /// match takes out.
+    #[arg(long)]
+    perturb: Option<String>,
 }
 
 fn odometry_model(a: &Args) -> anyhow::Result<OdometryModel> {
@@ -306,6 +311,7 @@ fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
     use host_sim::sim::generate::{generate, GenParams};
     use host_sim::sim::{simulate, SimConfig};
     use ogm_core::config::RunConfig;
+    let perturb = perturbation(a.perturb.as_deref())?;
     println!("| seed | scans | odometry mean/max m, ° | corrected mean/max m, ° | verdicts T/A/R/U/F/N/W/C | ms/scan |");
     println!("|---|---|---|---|---|---|");
     let mut sums = [0.0f64; 4];
@@ -383,6 +389,7 @@ fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
                 range_mm,
                 &settings,
                 (a.oracle, a.quiet, a.fresh),
+                perturb,
             )?;
         }
         let (o, m) = (err(&odometry), err(&t.poses));
@@ -414,6 +421,22 @@ fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `--perturb DX:DY:DEG` as numbers (zero without it).
+fn perturbation(arg: Option<&str>) -> anyhow::Result<(f64, f64, f64)> {
+    let Some(arg) = arg else {
+        return Ok((0.0, 0.0, 0.0));
+    };
+    let v: Vec<f64> = arg
+        .split(':')
+        .map(str::parse)
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--perturb {arg}: numbers DX:DY:DEG"))?;
+    match v.as_slice() {
+        [dx, dy, deg] if v.iter().all(|x| x.is_finite()) => Ok((*dx, *dy, *deg)),
+        _ => bail!("--perturb {arg}: three finite numbers DX:DY:DEG"),
+    }
+}
+
 /// `--per-scan`: the tracking loop of [`track`] once more, printing per scan the verdict and
 /// the error of the prediction and of the corrected pose against the truth.
 fn per_scan(
@@ -423,6 +446,7 @@ fn per_scan(
     range_mm: u32,
     settings: &TrackSettings,
     (oracle, quiet, fresh): (bool, bool, bool),
+    (pdx, pdy, pdeg): (f64, f64, f64),
 ) -> anyhow::Result<()> {
     use ogm_core::localize::{MapView, Tracker};
     use ogm_core::session::{Owned, Session, Sizes};
@@ -443,10 +467,22 @@ fn per_scan(
     let (mut pos, mut head) = (0.0f64, 0.0f64);
     for (k, (s, t)) in scans.iter().zip(truth).enumerate() {
         let map = MapView::new(session.log_odds(), session.geometry())?;
+        let mut odometry = s.pose;
         if oracle && fresh {
+            // The tracker forgets its correction: the prediction is the pose given here.
             tracker.reset();
+            let (sx, sy) = (
+                if k % 2 == 0 { 1.0 } else { -1.0 },
+                if (k / 2) % 2 == 0 { 1.0 } else { -1.0 },
+            );
+            odometry = Pose::new(
+                t.x_mm + (sx * pdx).round() as i32,
+                t.y_mm + (sy * pdy).round() as i32,
+                t.heading
+                    .wrapping_add(ogm_core::Angle::from_degrees(sx * sy * pdeg)),
+            );
         }
-        let c = tracker.update(&map, &s.pose, &s.beams);
+        let c = tracker.update(&map, &odometry, &s.beams);
         let q = c.matched.map(|m| m.quality).unwrap_or_default();
         if !quiet {
             println!(
