@@ -301,11 +301,26 @@ pub fn run_turns_online(
     std::fs::create_dir_all(&qemu_dir)?;
     let elf = build_elf(&qemu_dir.join("host-sim-build.log"))?;
     let log = qemu_dir.join("host-sim-firmware.log");
-    let link: Vec<u8> = [&input.link[..], &input.finish[..]].concat();
-    let steps = robot_steps(&input);
     let mut host = OnlineHost::new(restore);
-    let (run, sent) = run_qemu_paced(
-        &elf,
+    let (run, sent) = robot_paced(&elf, &input, &mut host, timeout, Some(&log))?;
+    let report = checked_robot_report(&config, &input, &sent, &run, Some(log), |_| ());
+    let (events, _) = decode_captured(&run.stream);
+    Ok((report, events, host, config))
+}
+
+/// A robot loop's two serial lines (`input`) written to the firmware `elf` in QEMU, paced on
+/// its turn reports, `host` answering its stream; QEMU's run and the link as sent.
+fn robot_paced(
+    elf: &std::path::Path,
+    input: &RobotInput,
+    host: &mut OnlineHost,
+    timeout: Duration,
+    log: Option<&std::path::Path>,
+) -> anyhow::Result<(super::qemu::QemuRun, Vec<u8>)> {
+    let link: Vec<u8> = [&input.link[..], &input.finish[..]].concat();
+    let steps = robot_steps(input);
+    run_qemu_paced(
+        elf,
         Paced {
             link: &link,
             lidar: Some(&input.lidar),
@@ -314,12 +329,9 @@ pub fn run_turns_online(
             host: Some(Box::new(|e: &DeviceEvent| host.answer(e))),
         },
         timeout,
-        Some(&log),
+        log,
     )
-    .context("the firmware in QEMU")?;
-    let report = checked_robot_report(&config, &input, &sent, &run, Some(log), |_| ());
-    let (events, _) = decode_captured(&run.stream);
-    Ok((report, events, host, config))
+    .context("the firmware in QEMU")
 }
 
 /// A robot run's two serial lines through the firmware in QEMU with an online host (sending
@@ -332,10 +344,10 @@ pub(super) fn run_input_online(
     input: &RobotInput,
     restore: bool,
 ) -> anyhow::Result<(FirmwareReport, Vec<u8>, Vec<u8>)> {
-    let link: Vec<u8> = [&input.link[..], &input.finish[..]].concat();
-    let steps = robot_steps(input);
     let mut host = OnlineHost::new(restore);
     if args.host_only {
+        let link: Vec<u8> = [&input.link[..], &input.finish[..]].concat();
+        let steps = robot_steps(input);
         let n = args.fixed_updates.unwrap_or(0);
         let sent = host_link(&link, &input.lidar, &steps, &mut host, n);
         // The stream is the plain replay's of the link as sent (the paced run above only
@@ -348,19 +360,8 @@ pub(super) fn run_input_online(
     let qemu_dir = repo_root().join("firmware/target/qemu");
     std::fs::create_dir_all(&qemu_dir)?;
     let (elf, log) = robot_firmware(args, &qemu_dir)?;
-    let (run, sent) = run_qemu_paced(
-        &elf,
-        Paced {
-            link: &link,
-            lidar: Some(&input.lidar),
-            steps: &steps,
-            answers: None,
-            host: Some(Box::new(|e: &DeviceEvent| host.answer(e))),
-        },
-        Duration::from_secs(args.timeout),
-        log.as_deref(),
-    )
-    .context("the firmware in QEMU")?;
+    let timeout = Duration::from_secs(args.timeout);
+    let (run, sent) = robot_paced(&elf, input, &mut host, timeout, log.as_deref())?;
     let report = checked_robot_report(config, input, &sent, &run, log, |_| ());
     Ok((report, run.stream, sent))
 }
