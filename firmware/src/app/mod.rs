@@ -279,7 +279,7 @@ struct Hold {
 }
 
 /// The longest a turn waits for the host's answer to a window shift, µs: a host that sends
-/// the tiles back at 921 600 baud needs ~0.5 s for a shift's 64 tiles; past this the robot
+/// the tiles back at 921 600 baud needs ~0.7 s for a shift's 64 tiles; past this the robot
 /// maps without them (counted in `WindowReport::holds_unanswered`). The lidar waits in the
 /// turn queue (~140 ms of LD06) and the UART's ring meanwhile.
 pub const HOLD_US: u64 = 1_000_000;

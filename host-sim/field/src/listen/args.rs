@@ -57,7 +57,8 @@ pub struct ListenArgs {
     pub live: Option<String>,
     /// Do not send stored tiles back when the robot's rolling window comes back to them (by
     /// default the listener sends them, docs/wire.md "Restoring stored tiles"); the robot then
-    /// starts the region from unknown and the map merges the visits.
+    /// starts the region from unknown and the map merges the visits. Each shift is still
+    /// answered with `Resume` (nothing to send), so a robot with `window_hold` does not wait.
     #[arg(long)]
     pub no_restore: bool,
 }

@@ -191,12 +191,13 @@ impl Listener {
                         let msgs = map.restore_msgs(&tiles);
                         self.stats.tiles_sent_back += tiles.len() as u64;
                         self.outgoing.extend(msgs.iter().map(host_frame));
-                        // A robot with `window_hold` waits for this before it maps the turn
-                        // that shifted; one without ignores it.
-                        if w.shifts > self.stats.window.map_or(0, |p| p.shifts) {
-                            self.outgoing
-                                .push(host_frame(&ogm_core::wire::HostMsg::Resume));
-                        }
+                    }
+                    // After a shift, also without tiles to send: a robot with `window_hold`
+                    // waits for this before it maps the turn that shifted; one without
+                    // ignores it.
+                    if w.shifts > self.stats.window.map_or(0, |p| p.shifts) {
+                        self.outgoing
+                            .push(host_frame(&ogm_core::wire::HostMsg::Resume));
                     }
                     self.stats.revisits = Some(map.revisits().clone());
                 }
@@ -444,7 +445,8 @@ mod tests {
             l.push(&s);
             let out = l.take_outgoing();
             if !send_back {
-                assert!(out.is_empty());
+                // `Resume` alone: nothing to send back, but the shift is answered.
+                assert_eq!(out, [host_frame(&wire::HostMsg::Resume)]);
                 continue;
             }
             // 8 log-odds and 4 estimate parts, decodable host frames carrying the stored cells,
