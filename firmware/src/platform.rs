@@ -48,6 +48,12 @@ pub trait Platform {
         None
     }
 
+    /// Ticks in `us` microseconds, at most `u32::MAX` (a duration compared with the
+    /// `wrapping_sub` of two [`Platform::now`] readings).
+    fn ticks_in_us(us: u64) -> u32 {
+        (us.saturating_mul(u64::from(Self::TICK_HZ)) / 1_000_000).min(u64::from(u32::MAX)) as u32
+    }
+
     /// Nanoseconds in `ticks`.
     fn ticks_to_ns(ticks: u64) -> u64 {
         ticks * u64::from(1_000_000_000 / Self::TICK_HZ.max(1))

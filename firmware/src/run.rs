@@ -15,7 +15,7 @@ const HOST_WAIT_US: u64 = 100_000;
 
 /// Waits up to [`HOST_WAIT_US`] for the first byte from a host.
 fn wait_for_host<L: ReadReady, P: Platform>(link: &mut L, platform: &P) -> bool {
-    let limit = (HOST_WAIT_US * u64::from(P::TICK_HZ) / 1_000_000) as u32;
+    let limit = P::ticks_in_us(HOST_WAIT_US);
     let t0 = platform.now();
     while platform.now().wrapping_sub(t0) < limit {
         if link.read_ready().unwrap_or(false) {
@@ -51,7 +51,7 @@ where
         info!("no host on the link: self-test");
         return selftest::run(&mut app, link, platform);
     }
-    let silent = (LIDAR_SILENT_US * u64::from(P::TICK_HZ) / 1_000_000) as u32;
+    let silent = P::ticks_in_us(LIDAR_SILENT_US);
     let mut heard = platform.now();
     // One LD06 packet at a time (a read completes at most one), so the turn queue's room is
     // checked before every packet.
@@ -98,7 +98,7 @@ fn start_lidar<R: LidarPort, P: Platform>(lidar: &mut R, platform: &P, model: Li
         let ok = write_all(lidar, &ogm_core::lidar::rplidar::REQ_STOP) && lidar.flush().is_ok();
         // ≥ 1 ms after STOP (2 ms: the byte may still be on the wire when `flush` returns).
         let t0 = platform.now();
-        let wait = (2_000 * u64::from(P::TICK_HZ) / 1_000_000) as u32;
+        let wait = P::ticks_in_us(2_000);
         while platform.now().wrapping_sub(t0) < wait {}
         if !(ok && write_all(lidar, &ogm_core::lidar::rplidar::REQ_SCAN) && lidar.flush().is_ok()) {
             error!("lidar: cannot send the RPLIDAR its requests");

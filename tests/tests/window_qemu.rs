@@ -219,17 +219,11 @@ fn turns_held_for_the_hosts_tiles_stitch_steps_longer_than_the_margin_in_qemu() 
         4.0,
         MAX_RANGE,
     );
-    let (r, events, host, config) =
+    let (r, _, host, config) =
         run_turns_online(&config, &scans, Duration::from_secs(120), true).expect("run");
     ran_identical(&r);
-    let last = events
-        .iter()
-        .rev()
-        .find_map(|e| match e {
-            DeviceEvent::Window(w) => Some(*w),
-            _ => None,
-        })
-        .expect("a Window at the end");
+    let building = host.building().expect("a Hello");
+    let last = *building.window().expect("a Window at the end");
     assert!(last.shifts >= 6 && last.tiles_restored >= 10, "{last:?}");
     assert_eq!(
         (
@@ -241,7 +235,7 @@ fn turns_held_for_the_hosts_tiles_stitch_steps_longer_than_the_margin_in_qemu() 
         "{last:?}"
     );
     assert_eq!(last.turns_held, last.shifts, "{last:?}");
-    let online = host.building().expect("a Hello").render();
+    let online = building.render();
     let (d, known) = differ_turns(&config, &scans, &online);
     assert!(known > 10_000, "mapped cells: {known}");
     assert_eq!(d, 0, "stitched vs unbounded: {d} of {known} cells differ");

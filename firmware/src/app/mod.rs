@@ -137,8 +137,7 @@ impl<'a, S: Storage> App<'a, S> {
         let Some(h) = self.state.hold else {
             return Fed::Nothing;
         };
-        let limit = (HOLD_US * u64::from(P::TICK_HZ) / 1_000_000).min(u64::from(u32::MAX)) as u32;
-        if platform.now().wrapping_sub(h.since) < limit {
+        if platform.now().wrapping_sub(h.since) < P::ticks_in_us(HOLD_US) {
             return Fed::Nothing;
         }
         warn!(

@@ -493,8 +493,7 @@ fn sample_until<S: Storage, P: Platform>(
     max_updates: u32,
 ) -> u32 {
     // Ticks fit a u32 for periods up to 171 s at 25 MHz; longer ones are cut there.
-    let period =
-        (u64::from(period_us) * u64::from(P::TICK_HZ) / 1_000_000).min(u64::from(u32::MAX)) as u32;
+    let period = P::ticks_in_us(u64::from(period_us));
     let start = platform.now();
     let mut done = 0u32;
     loop {

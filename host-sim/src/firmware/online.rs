@@ -34,8 +34,6 @@ use crate::sim::explore::ScanRecord;
 pub struct OnlineHost {
     building: Option<BuildingMap>,
     restore: bool,
-    /// Shifts the last `Window` reported.
-    shifts: u32,
     /// `Restore` parts sent.
     pub parts_sent: u64,
 }
@@ -46,7 +44,6 @@ impl OnlineHost {
         OnlineHost {
             building: None,
             restore,
-            shifts: 0,
             parts_sent: 0,
         }
     }
@@ -69,9 +66,8 @@ impl OnlineHost {
                 }
             }
             DeviceEvent::Window(w) => {
-                let shifted = w.shifts > self.shifts;
-                self.shifts = w.shifts;
                 if let Some(b) = &mut self.building {
+                    let shifted = w.shifts > b.window().map_or(0, |p| p.shifts);
                     b.note_window(*w);
                     if self.restore && shifted {
                         let tiles = b.entered().to_vec();
@@ -371,7 +367,7 @@ mod tests {
     use ogm_core::config::Budget;
     use ogm_core::session::{Owned, Session, Sizes};
     use ogm_core::wire::WindowReport;
-    use ogm_field::stream::{BuildingMap, DeviceEvent};
+    use ogm_field::stream::BuildingMap;
 
     use super::super::log::{firmware_scan, log_config, log_input, mount_heading};
     use super::*;
@@ -410,19 +406,14 @@ mod tests {
             "answers only with restore"
         );
         let (_, events) = replay_fixed(&sent, &input.lidar, 20).unwrap();
-        let mut b = BuildingMap::new(256, 256, 16);
-        let mut last = None;
-        for e in &events {
-            match e {
-                DeviceEvent::Window(w) => {
-                    b.note_window(*w);
-                    last = Some(*w);
-                }
-                DeviceEvent::Tile(t) => b.apply(t).unwrap(),
-                _ => {}
-            }
-        }
-        let w = last.expect("a final Window");
+        let hello = super::super::groups::Groups::of(&events).hello;
+        let b = BuildingMap::stitch(hello.as_ref().expect("a Hello"), &events);
+        let w = *b.window().expect("a final Window");
+        assert_eq!(
+            (b.tiles_bad_size(), b.tiles_refused()),
+            (0, 0),
+            "every tile applies"
+        );
         // The unbounded map of the same scans, as the firmware's turns hold them.
         let (x0, y0, gw, gh) = (-128i32, -128i32, 896u16, 544u16);
         let mut s = Session::new(
