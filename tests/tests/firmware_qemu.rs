@@ -5,7 +5,7 @@
 //! `scripts/test-all.sh` runs first). Without them the test is skipped with a message — unless
 //! `OGM_REQUIRE_FIRMWARE=1`, when it fails. Runtime: ~10 s after the firmware build.
 
-use host_sim::firmware::{print_report, run, FirmwareArgs, FirmwareReport};
+use host_sim::firmware::{run, FirmwareArgs, FirmwareReport};
 
 /// Runs `args` in QEMU (`None`: skipped, without the firmware toolchain) and checks what every
 /// run must show: a clean exit, and a streamed map equal to the host's over more than three
@@ -15,18 +15,7 @@ fn run_bit_exact(test: &str, args: &FirmwareArgs) -> Option<FirmwareReport> {
         return None;
     }
     let r = run(args).expect("host-sim firmware run");
-    print_report(&r);
-    assert_eq!(
-        r.exit_code,
-        Some(0),
-        "firmware exit status (log: {:?})",
-        r.log
-    );
-    assert!(
-        r.identical(),
-        "the firmware's streamed map differs from the host's:\n{}",
-        r.mismatches.join("\n")
-    );
+    ogm_tests::assert_ran_identical(&r);
     assert!(r.checks > 3 * 65_536, "too few comparisons: {}", r.checks);
     Some(r)
 }

@@ -13,7 +13,6 @@
 use std::time::Duration;
 
 use host_sim::firmware::online::{run_scans_online, run_turns_online};
-use host_sim::firmware::{print_report, FirmwareReport};
 use host_sim::sim::boxes;
 use host_sim::sim::explore::ScanRecord;
 use ogm_core::config::{Budget, RunConfig};
@@ -96,23 +95,6 @@ fn differ_read(config: &RunConfig, scans: &[ScanRecord], r: &BuildingRender) -> 
     (differ, known)
 }
 
-/// Prints the run's report; asserts the firmware exited cleanly and streamed exactly what the
-/// host replay of the link as sent streams.
-fn ran_identical(r: &FirmwareReport) {
-    print_report(r);
-    assert_eq!(
-        r.exit_code,
-        Some(0),
-        "firmware exit status (log {:?})",
-        r.log
-    );
-    assert!(
-        r.identical(),
-        "firmware vs host replay of the link as sent:\n{}",
-        r.mismatches.join("\n")
-    );
-}
-
 #[test]
 fn a_building_larger_than_the_window_stitches_to_the_unbounded_map_in_qemu() {
     if !ogm_tests::firmware_available(
@@ -135,7 +117,7 @@ fn a_building_larger_than_the_window_stitches_to_the_unbounded_map_in_qemu() {
     ]);
     let (r, events, host) =
         run_scans_online(&config, &scans, Duration::from_secs(120), true).expect("run");
-    ran_identical(&r);
+    ogm_tests::assert_ran_identical(&r);
     let windows: Vec<_> = events
         .iter()
         .filter_map(|e| match e {
@@ -221,7 +203,7 @@ fn turns_held_for_the_hosts_tiles_stitch_steps_longer_than_the_margin_in_qemu() 
     );
     let (r, _, host, config) =
         run_turns_online(&config, &scans, Duration::from_secs(120), true).expect("run");
-    ran_identical(&r);
+    ogm_tests::assert_ran_identical(&r);
     let building = host.building().expect("a Hello");
     let last = *building.window().expect("a Window at the end");
     assert!(last.shifts >= 6 && last.tiles_restored >= 10, "{last:?}");
