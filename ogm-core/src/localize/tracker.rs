@@ -6,6 +6,7 @@
 //! odometry step since then to the corrected pose, matched, and the corrected pose remembered.
 //! Poses are integers (mm, [`Angle`]); the algebra is exact up to one mm and one angle unit.
 
+use crate::localize::fuse::Uncertainty;
 use crate::localize::{match_scan, prepare_points, MapView, MatchConfig, MatchResult};
 use crate::localize::{PointStats, ScanPoint, Verdict};
 use crate::types::angle::Angle;
@@ -59,27 +60,37 @@ impl Correction {
 
 /// The correction map ← odometry without settings or points (28 bytes): what a
 /// [`crate::Session`] keeps, its point buffer lent per scan ([`TrackState::update`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct TrackState {
     /// The last scan's odometry pose and the pose it was mapped with.
     last: Option<(Pose, Pose)>,
+    /// How uncertain the last corrected pose is ([`crate::localize::fuse`]).
+    uncertainty: Uncertainty,
 }
 
 impl TrackState {
     /// No scan seen yet: the next scan's pose is its odometry pose.
     pub const fn new() -> Self {
-        TrackState { last: None }
+        TrackState {
+            last: None,
+            uncertainty: Uncertainty::ZERO,
+        }
     }
 
     /// Forgets the correction (a new map).
     pub fn reset(&mut self) {
-        self.last = None;
+        *self = TrackState::new();
     }
 
     /// The last scan's odometry pose and corrected pose, if any.
     pub fn last(&self) -> Option<(Pose, Pose)> {
         self.last
+    }
+
+    /// How uncertain the last corrected pose is.
+    pub fn uncertainty(&self) -> &Uncertainty {
+        &self.uncertainty
     }
 
     /// The corrected pose of an odometry pose under the current correction: the last corrected
@@ -111,12 +122,16 @@ impl TrackState {
             matched: None,
             points: PointStats::default(),
         };
+        // The first scan of a map defines its frame: its pose is exactly known (ZERO).
+        if let Some((odo, _)) = self.last {
+            self.uncertainty.predict(&between(&odo, odometry), config);
+        }
         if matching {
             let cell = map.geometry().cell_mm();
             out.points = prepare_points(beams, cell, config, points);
             let pts = points.get(..out.points.kept).unwrap_or(&[]);
             let r = match_scan(map, pts, &predicted, config);
-            out.pose = r.accepted();
+            out.pose = self.uncertainty.fuse(&r, config);
             out.matched = Some(r);
         }
         self.last = Some((*odometry, out.pose));

@@ -26,8 +26,20 @@ const PROBE_PER_SIGMA_Q8: u32 = 256;
 /// simulated runs (σ = 3 cells, issue 39's odometry, online max F1, docs/firmware.md): ÷4
 /// lifts the stop-and-scan runs (seeds 1–15) from a mean of 0.526 to 0.576 and leaves the
 /// runs scanning while driving (seeds 1–8) where they were (0.527); ÷2 and ÷8 did less on
-/// seeds 1–5.
+/// seeds 1–5. (Measured before the filter of `crate::localize::fuse`, with the defaults'
+/// priors then four times today's; with the filter ÷4 of today's defaults was kept, as a
+/// sixteenth of today's did no better while driving, seeds 1–10.)
 const BAND_PRIOR_DIVISOR: u16 = 4;
+/// The match's σ per axis ([`MatchConfig::match_sigma_mm`]) in the sensor's σ (Q8): a match
+/// is off by about a fifth of its beams' noise (one match at its true pose against the
+/// true-pose map, simulated runs: 16 mm at σ = 50 mm, 22 mm at σ = 150 mm; `match_eval
+/// --per-scan --oracle --fresh`).
+const MATCH_SIGMA_PER_SIGMA_Q8: u32 = 51;
+/// The match's heading σ, millidegrees per mm of the sensor's σ (Q8): 0.4° at σ = 150 mm.
+const MATCH_MDEG_PER_SIGMA_MM_Q8: u32 = 683;
+/// The match's σ never falls below these (mm, millidegrees): a cell's quantisation.
+const MIN_MATCH_SIGMA_MM: u32 = 5;
+const MIN_MATCH_SIGMA_MDEG: u32 = 60;
 
 impl RunConfig {
     /// The mapper settings: Hähnel's ray model with the free update scaled by
@@ -71,10 +83,18 @@ impl RunConfig {
             return None;
         }
         let d = MatchConfig::default();
+        let sigma_mm = u64::from(self.sigma_milli_cells) * u64::from(self.cell_mm) / 1000;
+        let sigma = u32::try_from(sigma_mm).unwrap_or(u32::MAX);
         let c = MatchConfig {
             max_range_mm: d.max_range_mm.min(self.max_range_mm),
             min_range_mm: d.min_range_mm.max(self.min_range_mm),
             budget_reads: MATCH_BUDGET_READS,
+            match_sigma_mm: to_u16(
+                (sigma.saturating_mul(MATCH_SIGMA_PER_SIGMA_Q8) / 256).max(MIN_MATCH_SIGMA_MM),
+            ),
+            match_sigma_mdeg: to_u16(
+                (sigma.saturating_mul(MATCH_MDEG_PER_SIGMA_MM_Q8) / 256).max(MIN_MATCH_SIGMA_MDEG),
+            ),
             ..d
         };
         let c = if self.face_band {
@@ -82,10 +102,8 @@ impl RunConfig {
             // behind it), and it is several cells thick: points go where it is, the quality
             // probes step across it, and a wrong pose touching a few thick walls is not an
             // overlap; its noisier points weigh less against the prediction.
-            let sigma_mm = u64::from(self.sigma_milli_cells) * u64::from(self.cell_mm) / 1000;
-            let sigma = u32::try_from(sigma_mm).unwrap_or(u32::MAX);
             MatchConfig {
-                hit_offset_mm: u16::try_from(sigma * OFFSET_PER_SIGMA_Q8 / 256).unwrap_or(u16::MAX),
+                hit_offset_mm: to_u16(sigma.saturating_mul(OFFSET_PER_SIGMA_Q8) / 256),
                 probe_mm: c
                     .probe_mm
                     .max(sigma.saturating_mul(PROBE_PER_SIGMA_Q8) / 256),
@@ -153,6 +171,11 @@ impl RunConfig {
             LogOdds::ZERO
         }
     }
+}
+
+/// `v` as a `u16`, saturating.
+fn to_u16(v: u32) -> u16 {
+    u16::try_from(v).unwrap_or(u16::MAX)
 }
 
 #[cfg(test)]
