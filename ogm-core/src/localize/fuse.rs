@@ -269,7 +269,8 @@ fn round_add(a: i32, g: f32) -> i32 {
     if !g.is_finite() {
         return a;
     }
-    let g = libm::roundf(g).max(-2.0e9).min(2.0e9) as i64;
+    // `as` saturates (and `g` is finite here).
+    let g = libm::roundf(g) as i64;
     (i64::from(a) + g).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }
 
