@@ -81,8 +81,11 @@
 //! bits before one fails (each passes with probability ≈ 1/4…1/2, depending on the data; the
 //! lock-on that follows is as strict as at start-up). A descriptor (`A5 5A` can never start a valid node) is
 //! recognised anywhere a node could start. Unknown or unsupported descriptors (express scan) are
-//! reported and the parser keeps hunting. It counts nodes, bad nodes, scan starts, descriptors,
-//! responses, lock-ons, skipped bytes and truncated responses ([`RplidarCounters`]).
+//! reported and the parser keeps hunting. While hunting, `A5 5A` may also be node data (angle or
+//! distance bytes), so such a descriptor is taken only if no lock-on window starts inside it
+//! (the window's check bits and angles pass); otherwise its `A5` is skipped and the nodes come
+//! back. It counts nodes, bad nodes, scan starts, descriptors, responses, lock-ons, skipped bytes
+//! and truncated responses ([`RplidarCounters`]).
 //!
 //! [`Angle`]: crate::types::angle::Angle
 

@@ -229,6 +229,21 @@ impl RplidarParser {
             };
             match Descriptor::parse(d) {
                 Some(d) if d.mode <= MODE_MULTIPLE => {
+                    if follow(&d) == Mode::Hunting {
+                        // Nothing beyond `A5 5A` can be checked in a descriptor the parser does
+                        // not follow, and `A5 5A` also occurs in node data: a node stream
+                        // starting inside it is better evidence than the descriptor, whose 7
+                        // bytes would swallow that stream's first node.
+                        match lock_inside_descriptor(self.held()) {
+                            Candidate::NeedMore => return false,
+                            Candidate::Lock => {
+                                self.consume(1);
+                                self.skip(1);
+                                return true;
+                            }
+                            Candidate::Reject => {}
+                        }
+                    }
                     self.consume(DESCRIPTOR_LEN);
                     self.counters.descriptors = self.counters.descriptors.saturating_add(1);
                     self.mode = follow(&d);
@@ -357,46 +372,79 @@ enum Candidate {
     Lock,
 }
 
-/// Buffer size: the largest of a lock-on window (15), a descriptor (7) and an info response (20).
+/// Buffer size: the largest of a lock-on window (15), a descriptor candidate with the lock-on
+/// windows inside it (6 + 13), a descriptor (7) and an info response (20).
 const BUF_LEN: usize = INFO_LEN;
-const _: () = assert!(BUF_LEN >= LOCK_NODES * NODE_LEN && BUF_LEN >= DESCRIPTOR_LEN);
+/// Bytes of a lock-on window its rules look at: all but the last node's distance.
+const LOCK_CHECKED: usize = (LOCK_NODES - 1) * NODE_LEN + 3;
+// A descriptor candidate is decided once 6 + 13 = 19 bytes are held, so `pending() < 20` holds
+// (the fuzz target checks it).
+const _: () =
+    assert!(BUF_LEN >= LOCK_NODES * NODE_LEN && BUF_LEN >= DESCRIPTOR_LEN - 1 + LOCK_CHECKED);
+
+/// Judges the lock-on windows starting inside the descriptor candidate at the start of `b`
+/// (offsets `1..DESCRIPTOR_LEN`) by [`lock_rules`]: `A5 5A` in node data (node bytes 1–2, 2–3,
+/// 3–4, or byte 4 and the next node's byte 0) ends 1…4 bytes before a node boundary, and 6…9
+/// before the one after if that node is bad. Locks if any window passes; needs more bytes while
+/// one is undecided.
+fn lock_inside_descriptor(b: &[u8]) -> Candidate {
+    let mut need_more = false;
+    for offset in 1..DESCRIPTOR_LEN {
+        match lock_rules(b.get(offset..).unwrap_or(&[])) {
+            Candidate::Lock => return Candidate::Lock,
+            Candidate::NeedMore => need_more = true,
+            Candidate::Reject => {}
+        }
+    }
+    if need_more {
+        Candidate::NeedMore
+    } else {
+        Candidate::Reject
+    }
+}
 
 /// Judges the lock-on window at the start of `b` as far as its bytes go (see the module docs):
-/// rejects as soon as a rule fails, locks once [`LOCK_NODES`] nodes pass.
+/// rejects as soon as a rule fails, locks once [`LOCK_NODES`] whole nodes pass.
 fn lock_candidate(b: &[u8]) -> Candidate {
+    match lock_rules(b) {
+        // The window's nodes are delivered at once: wait for the last distance too.
+        Candidate::Lock if b.len() < LOCK_NODES * NODE_LEN => Candidate::NeedMore,
+        verdict => verdict,
+    }
+}
+
+/// The lock-on rules on the window at the start of `b`: rejects as soon as one fails, passes
+/// (`Lock`) once its first [`LOCK_CHECKED`] bytes are in (distances are not checked).
+fn lock_rules(b: &[u8]) -> Candidate {
     let mut prev: Option<u32> = None;
     for i in 0..LOCK_NODES {
-        let from = i * NODE_LEN;
-        let node = b.get(from..b.len().min(from + NODE_LEN)).unwrap_or(&[]);
-        if node.is_empty() {
+        let byte = |j: usize| b.get(i * NODE_LEN + j).copied();
+        let Some(b0) = byte(0) else {
             return Candidate::NeedMore;
+        };
+        if !flags_ok(b0) || (i > 0 && b0 & 1 == 1) {
+            return Candidate::Reject;
         }
-        if let Some(&b0) = node.first() {
-            if !flags_ok(b0) || (i > 0 && b0 & 1 == 1) {
-                return Candidate::Reject;
-            }
-        }
-        if let Some(&b1) = node.get(1) {
-            if b1 & 1 == 0 {
-                return Candidate::Reject;
-            }
-        }
-        if let (Some(&b1), Some(&b2)) = (node.get(1), node.get(2)) {
-            let a = u32::from(node_angle(b1, b2));
-            if a >= TURN_Q6 {
-                return Candidate::Reject;
-            }
-            if let Some(p) = prev {
-                let step = (a + TURN_Q6 - p % TURN_Q6) % TURN_Q6;
-                if step == 0 || step > MAX_LOCK_STEP_Q6 {
-                    return Candidate::Reject;
-                }
-            }
-            prev = Some(a);
-        }
-        if node.len() < NODE_LEN {
+        let Some(b1) = byte(1) else {
             return Candidate::NeedMore;
+        };
+        if b1 & 1 == 0 {
+            return Candidate::Reject;
         }
+        let Some(b2) = byte(2) else {
+            return Candidate::NeedMore;
+        };
+        let a = u32::from(node_angle(b1, b2));
+        if a >= TURN_Q6 {
+            return Candidate::Reject;
+        }
+        if let Some(p) = prev {
+            let step = (a + TURN_Q6 - p % TURN_Q6) % TURN_Q6;
+            if step == 0 || step > MAX_LOCK_STEP_Q6 {
+                return Candidate::Reject;
+            }
+        }
+        prev = Some(a);
     }
     Candidate::Lock
 }
@@ -517,6 +565,117 @@ mod tests {
         let c = p.counters();
         assert_eq!((c.bad_nodes, c.locks), (2, 2));
         assert!(p.is_locked());
+    }
+
+    /// Nodes with `S = 0` from `(quality, angle_q6, distance_q2)`, and their bytes.
+    fn stream(spec: &[(u8, u16, u16)]) -> (Vec<Node>, Vec<u8>) {
+        let nodes: Vec<Node> = spec
+            .iter()
+            .map(|&(quality, angle_q6, distance_q2)| Node {
+                start: false,
+                quality,
+                angle_q6,
+                distance_q2,
+            })
+            .collect();
+        let bytes = nodes.iter().flat_map(|n| n.to_bytes()).collect();
+        (nodes, bytes)
+    }
+
+    #[test]
+    fn sync_bytes_in_node_data_do_not_swallow_nodes_while_hunting() {
+        // `A5 5A` at each place it can sit in node data. Hunting over it used to read a
+        // descriptor of an unknown type, whose 7 bytes ran into (and lost) the next node.
+        // a: node 2 bytes 1–2 (angle 11602).
+        let a = stream(&[
+            (47, 11500, 4000),
+            (47, 11550, 4000),
+            (47, 11602, 4000),
+            (47, 11650, 4000),
+            (47, 11700, 4000),
+            (47, 11750, 4000),
+        ]);
+        // b: node 1 bytes 2–3, node 3 bytes 3–4, node 5 byte 4 + node 6 byte 0 (quality 22).
+        let b = stream(&[
+            (47, 21100, 4000),
+            (47, 21150, 0x105A),
+            (47, 21200, 4000),
+            (47, 21250, 0x5AA5),
+            (47, 21300, 4000),
+            (47, 21350, 0xA510),
+            (22, 21400, 4000),
+            (47, 21450, 4000),
+            (47, 21500, 4000),
+            (47, 21550, 4000),
+            (47, 21600, 4000),
+        ]);
+        assert_eq!(a.1[11..13], [SYNC1, SYNC2]);
+        for at in [7, 18, 29] {
+            assert_eq!(b.1[at..at + 2], [SYNC1, SYNC2]);
+        }
+        // Start-up anywhere: every node from the next boundary on comes back.
+        for (nodes, bytes) in [&a, &b] {
+            for from in 0..bytes.len() {
+                let first = from.div_ceil(NODE_LEN);
+                if nodes.len() - first < LOCK_NODES {
+                    continue; // too few left to lock on
+                }
+                let mut p = RplidarParser::new();
+                let (got, other, errors) = run(&mut p, &bytes[from..]);
+                assert_eq!(got, nodes[first..], "start at byte {from}");
+                assert!(
+                    other.is_empty() && errors.is_empty(),
+                    "start at byte {from}"
+                );
+                assert_eq!(p.counters().skipped_bytes as usize, first * NODE_LEN - from);
+            }
+        }
+        // A bad node holding `A5 5A` (the shape of the proptest regression): only it is lost.
+        let (nodes, bytes) = &a;
+        let mut s = SCAN_DESCRIPTOR.to_vec();
+        s.extend_from_slice(bytes);
+        s[DESCRIPTOR_LEN + 2 * NODE_LEN] ^= 1; // node 2: S = !S
+        let mut p = RplidarParser::new();
+        let (got, other, errors) = run(&mut p, &s);
+        assert_eq!(got[..2], nodes[..2]);
+        assert_eq!(got[2..], nodes[3..]);
+        assert_eq!(other.len(), 1, "only the scan descriptor");
+        assert_eq!(errors, [RplidarError::StartFlags]);
+        let c = p.counters();
+        assert_eq!((c.bad_nodes, c.locks, c.skipped_bytes), (1, 1, 5));
+        // Node 5 (ending in `A5`) and node 6 (starting with `5A`) bad: the candidate covers
+        // node 7's first byte, so the lock-on window 6 bytes into it must be judged too.
+        let (nodes, bytes) = &b;
+        let mut s = SCAN_DESCRIPTOR.to_vec();
+        s.extend_from_slice(bytes);
+        s[DESCRIPTOR_LEN + 5 * NODE_LEN] ^= 1; // node 5: S = !S
+        s[DESCRIPTOR_LEN + 6 * NODE_LEN + 1] ^= 1; // node 6: C = 0
+        let mut p = RplidarParser::new();
+        let (got, other, errors) = run(&mut p, &s);
+        assert_eq!(got[..5], nodes[..5]);
+        assert_eq!(got[5..], nodes[7..]);
+        assert_eq!(other.len(), 1, "only the scan descriptor");
+        assert_eq!(errors, [RplidarError::StartFlags]);
+        let c = p.counters();
+        assert_eq!((c.bad_nodes, c.locks, c.skipped_bytes), (1, 1, 10));
+    }
+
+    #[test]
+    fn descriptors_not_followed_are_still_reported() {
+        // Express scan (unsupported) and an unknown type: no node stream starts inside them,
+        // so both are reported, also right before a node stream or at the very end.
+        let express = [SYNC1, SYNC2, 0x54, 0, 0, 0x40, 0x82];
+        let unknown = [SYNC1, SYNC2, 0x10, 0, 0, 0, 0x77];
+        let mut s = express.to_vec();
+        s.extend(turn(5, 0));
+        s.extend_from_slice(&unknown);
+        let mut p = RplidarParser::new();
+        let (nodes, other, errors) = run(&mut p, &s);
+        assert_eq!(nodes.len(), 5);
+        assert!(errors.is_empty());
+        let want = |b| Event::Descriptor(Descriptor::parse(&b).unwrap());
+        assert_eq!(other, [want(express), want(unknown)]);
+        assert_eq!((p.pending(), p.counters().skipped_bytes), (0, 0));
     }
 
     #[test]
