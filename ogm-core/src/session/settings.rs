@@ -13,7 +13,7 @@ use crate::LogOdds;
 /// Cell reads per scan for the matcher's search and passes: with an LD06 turn's 456 beams at
 /// most ~1.4 M Cortex-M4 instructions per scan (the bar: 1.5 M, a quarter of a 64 MHz
 /// M4's 10 Hz period), measured in QEMU (docs/firmware.md, "Pose correction").
-const MATCH_BUDGET_READS: u32 = 40_000;
+const MATCH_BUDGET_READS: u32 = 38_000;
 /// A face band's hit offset, in σ (Q8).
 const OFFSET_PER_SIGMA_Q8: u32 = 256;
 /// A face band's least overlap (‰): its thick walls let a wrong pose touch some of them.
