@@ -15,7 +15,7 @@
 
 use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
-use ogm_core::config::{Budget, LidarModel, PoseCorrection, PoseInput, RunConfig};
+use ogm_core::config::{Budget, LidarModel, OdometryNoise, PoseCorrection, PoseInput, RunConfig};
 use ogm_core::config::{DataTerm, Estimator};
 use ogm_core::lidar::ld06::Ld06Parser;
 use ogm_core::lidar::ld06::{Packet, Point, POINTS};
@@ -68,6 +68,8 @@ enum Item {
         /// Pose correction: the session's scan matcher on every scan.
         correction: bool,
         window_hold: bool,
+        /// The robot's odometry noise (the pose filter's process noise), any values.
+        odometry: (u16, u16, u16),
     },
     PaperConfig {
         origin_x_mm: i16,
@@ -194,6 +196,7 @@ fuzz_target!(|items: Vec<Item>| {
                 window_margin_cells,
                 correction,
                 window_hold,
+                odometry,
             } => frame(
                 &mut bytes,
                 &HostMsg::Config(RunConfig {
@@ -257,6 +260,11 @@ fuzz_target!(|items: Vec<Item>| {
                         PoseCorrection::Off
                     },
                     window_hold,
+                    odometry: OdometryNoise {
+                        trans_permille: odometry.0,
+                        turn_permille: odometry.1,
+                        drift_mdeg_per_m: odometry.2,
+                    },
                 }),
             ),
             Item::PaperConfig {

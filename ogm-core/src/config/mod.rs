@@ -130,6 +130,47 @@ pub struct RunConfig {
     /// farthest step between turns). Lidar turns only; tunnelled scans are never held.
     #[serde(default)]
     pub window_hold: bool,
+    /// How good the robot's wheel odometry is (wire version 9), for the filter that weighs it
+    /// against each match ([`crate::localize::fuse`]). A settings file without it reads as
+    /// [`OdometryNoise::CHEAP_ROBOT`].
+    #[serde(default = "cheap_odometry")]
+    pub odometry: OdometryNoise,
+}
+
+/// The noise of the robot's wheel odometry, per step between scans: what the pose filter
+/// ([`crate::localize::fuse`]) expects of it. Errors larger than these are still corrected
+/// (a match the filter cannot explain widens it), but more slowly; smaller ones leave the
+/// matches' own errors more say than they deserve.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct OdometryNoise {
+    /// σ per axis, ‰ of the distance travelled.
+    pub trans_permille: u16,
+    /// σ of a turn, ‰ of the angle turned.
+    pub turn_permille: u16,
+    /// Heading drift per metre travelled, millidegrees (a bias taken as noise).
+    pub drift_mdeg_per_m: u16,
+}
+
+impl OdometryNoise {
+    /// A small uncalibrated differential-drive robot (the figures and their sources:
+    /// [`crate::localize::odometry::OdometryModel::CHEAP_ROBOT`]): 2 % of the distance, 5 % of
+    /// the turn, 0.5° per metre. The default: it does not flatter odometry.
+    pub const CHEAP_ROBOT: OdometryNoise = OdometryNoise {
+        trans_permille: 20,
+        turn_permille: 50,
+        drift_mdeg_per_m: 500,
+    };
+}
+
+impl Default for OdometryNoise {
+    fn default() -> Self {
+        OdometryNoise::CHEAP_ROBOT
+    }
+}
+
+fn cheap_odometry() -> OdometryNoise {
+    OdometryNoise::CHEAP_ROBOT
 }
 
 /// Whether the robot corrects its poses by scan-to-map matching ([`crate::localize`]).
@@ -274,6 +315,7 @@ impl RunConfig {
         window_margin_cells: 0,
         correction: PoseCorrection::Off,
         window_hold: false,
+        odometry: OdometryNoise::CHEAP_ROBOT,
     };
 
     /// The robot's settings ([`Default`]; what the firmware runs with when no host configures
@@ -356,6 +398,12 @@ impl RunConfig {
             window_hold: hold,
             ..self
         }
+    }
+
+    /// These settings with the robot's odometry noise `odometry` ([`RunConfig::odometry`]).
+    #[must_use]
+    pub const fn with_odometry_noise(self, odometry: OdometryNoise) -> Self {
+        RunConfig { odometry, ..self }
     }
 
     /// These settings with pose correction `correction`.

@@ -13,7 +13,7 @@ use crate::LogOdds;
 /// Cell reads per scan for the matcher's search and passes: with an LD06 turn's 456 beams at
 /// most ~1.4 M Cortex-M4 instructions per scan (the bar: 1.5 M, a quarter of a 64 MHz
 /// M4's 10 Hz period), measured in QEMU (docs/firmware.md, "Pose correction").
-const MATCH_BUDGET_READS: u32 = 38_000;
+const MATCH_BUDGET_READS: u32 = 36_000;
 /// A face band's hit offset, in σ (Q8).
 const OFFSET_PER_SIGMA_Q8: u32 = 256;
 /// A face band's least overlap (‰): its thick walls let a wrong pose touch some of them.
@@ -35,8 +35,11 @@ const BAND_PRIOR_DIVISOR: u16 = 4;
 /// true-pose map, simulated runs: 16 mm at σ = 50 mm, 22 mm at σ = 150 mm; `match_eval
 /// --per-scan --oracle --fresh`).
 const MATCH_SIGMA_PER_SIGMA_Q8: u32 = 51;
-/// The match's heading σ, millidegrees per mm of the sensor's σ (Q8): 0.4° at σ = 150 mm.
-const MATCH_MDEG_PER_SIGMA_MM_Q8: u32 = 683;
+/// The match's heading σ, millidegrees per mm of the sensor's σ (Q8): 0.8° at σ = 150 mm,
+/// twice one match's measured heading error, because successive scans share its bias and so
+/// average it out less than independent noise (`host-sim firmware --moving --host-only`,
+/// seeds 1–8, mean max F1: 0.592 at 0.4°, 0.618 at 0.8°, 0.608 at 1.6°).
+const MATCH_MDEG_PER_SIGMA_MM_Q8: u32 = 1366;
 /// The match's σ never falls below these (mm, millidegrees): a cell's quantisation.
 const MIN_MATCH_SIGMA_MM: u32 = 5;
 const MIN_MATCH_SIGMA_MDEG: u32 = 60;
@@ -89,6 +92,9 @@ impl RunConfig {
             max_range_mm: d.max_range_mm.min(self.max_range_mm),
             min_range_mm: d.min_range_mm.max(self.min_range_mm),
             budget_reads: MATCH_BUDGET_READS,
+            odo_trans_permille: self.odometry.trans_permille,
+            odo_turn_permille: self.odometry.turn_permille,
+            odo_drift_mdeg_per_m: self.odometry.drift_mdeg_per_m,
             match_sigma_mm: to_u16(
                 (sigma.saturating_mul(MATCH_SIGMA_PER_SIGMA_Q8) / 256).max(MIN_MATCH_SIGMA_MM),
             ),

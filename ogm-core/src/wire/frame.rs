@@ -11,10 +11,10 @@ use super::VERSION;
 pub static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// Longest host → device frame on the wire, both `0x00` delimiters included (a [`RunConfig`]
-/// with every field at its maximum is 113 bytes; tested).
+/// with every field at its maximum is 134 bytes; tested).
 ///
 /// [`RunConfig`]: crate::config::RunConfig
-pub const MAX_HOST_FRAME: usize = 128;
+pub const MAX_HOST_FRAME: usize = 144;
 
 /// Fewest bytes of a [`HostMsg::Pose`] frame on the wire (a lower bound; tested): a read of
 /// `n` link bytes completes at most `n / MIN_POSE_FRAME + 1` poses.
@@ -232,6 +232,11 @@ mod tests {
             window_margin_cells: u16::MAX,
             correction: crate::config::PoseCorrection::Match,
             window_hold: true,
+            odometry: crate::config::OdometryNoise {
+                trans_permille: u16::MAX,
+                turn_permille: u16::MAX,
+                drift_mdeg_per_m: u16::MAX,
+            },
         }
     }
 

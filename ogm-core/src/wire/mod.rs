@@ -58,4 +58,4 @@ pub use tile::{
 };
 
 /// Schema version, the first byte of every frame.
-pub const VERSION: u8 = 8;
+pub const VERSION: u8 = 9;
