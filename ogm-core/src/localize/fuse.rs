@@ -301,18 +301,23 @@ mod tests {
         }
     }
 
+    /// P = R of [`cfg`]: 20 mm per axis and 0.5°.
+    fn as_uncertain_as_the_match() -> Uncertainty {
+        Uncertainty {
+            xx: 400.0,
+            xy: 0.0,
+            yy: 400.0,
+            tt: (0.5f32.to_radians()).powi(2),
+            ..Uncertainty::ZERO
+        }
+    }
+
     #[test]
     fn equal_uncertainties_meet_half_way() {
         let c = cfg();
         // P = R: 20 mm per axis and 0.5°.
-        let tt = (0.5f32.to_radians()).powi(2);
-        let mut u = Uncertainty {
-            xx: 400.0,
-            xy: 0.0,
-            yy: 400.0,
-            tt,
-            ..Uncertainty::ZERO
-        };
+        let mut u = as_uncertain_as_the_match();
+        let tt = u.tt;
         let p = Pose::new(1000, 2000, Angle(100));
         let m = Pose::new(1060, 1960, Angle(300));
         let f = u.fuse(&result(p, m, Verdict::Trusted), &c);
@@ -398,14 +403,7 @@ mod tests {
         let c = cfg();
         let p = Pose::new(0, 0, Angle::ZERO);
         // P = R (20 mm, 0.5°), but the match is 300 mm and 5° away: odometry slipped.
-        let tt = (0.5f32.to_radians()).powi(2);
-        let mut u = Uncertainty {
-            xx: 400.0,
-            xy: 0.0,
-            yy: 400.0,
-            tt,
-            ..Uncertainty::ZERO
-        };
+        let mut u = as_uncertain_as_the_match();
         let m = Pose::new(300, 0, Angle::from_degrees(5.0));
         let f = u.fuse(&result(p, m, Verdict::Trusted), &c);
         // Without the widening half way (150 mm, 2.5°); with it most of the way.

@@ -20,8 +20,9 @@
 //! assert_eq!(c.pose, c.predicted); // one beam on an empty map: cannot tell, odometry kept
 //! ```
 //! * [`Tracker::update`]`(map, odometry pose, beams) → `[`Correction`]: the corrected pose to
-//!   insert with (the match if [`Verdict::is_usable`], else the prediction), the prediction, the
-//!   [`MatchResult`] (verdict, [`Quality`], [`Work`]) and what became of the beams.
+//!   insert with (if the match is [`Verdict::is_usable`], the prediction moved towards it as far
+//!   as the filter of [`fuse`] says; else the prediction), the prediction, the [`MatchResult`]
+//!   (verdict, [`Quality`], [`Work`]) and what became of the beams.
 //! * The tracker holds map ← odometry ([`Tracker::correct`] maps any odometry pose, e.g. for a
 //!   live view between scans); [`Tracker::set_matching`] turns matching off (the correction
 //!   stays); [`Tracker::reset`] forgets it (new map).
@@ -61,6 +62,10 @@
 //!   put far points out of every window's reach. Before Gauss–Newton, `2·`[`MatchConfig::turn_search`]
 //!   ` + 1` headings one cell at the lever apart (within [`MatchConfig::max_turn`]) are scored
 //!   on the grid max-pooled 2 × 2, translation kept; the best one is where Gauss–Newton starts.
+//! * **Then a filter** ([`fuse`]): the match is one measurement with its own error
+//!   ([`MatchConfig::match_sigma_mm`], [`MatchConfig::match_sigma_mdeg`]), odometry another
+//!   ([`MatchConfig::odo_trans_permille`] …); a Kalman filter on the corrected pose weighs them,
+//!   so a match's location-dependent bias is averaged over scans instead of walked into the map.
 //! * **Gauss–Newton with the prediction as a prior.** From [`MatchConfig::levels`] down to the
 //!   grid, up to [`MatchConfig::iterations`] steps per level solve `(H + Λ) δ = b − Λ ξ` with
 //!   `H = Σ JᵀΩJ`, `b = Σ JᵀΩμ` in `i64`. `Λ` weighs the odometry prediction
