@@ -11,8 +11,9 @@
 //! heading drift per metre), and moves the prediction towards a usable match only as far as the
 //! two uncertainties say ([`Uncertainty::fuse`], the Kalman gain `K = P (P + R)⁻¹`), the match's
 //! `R` being [`MatchConfig::match_sigma_mm`] and [`MatchConfig::match_sigma_mdeg`]. Along the
-//! axis an ambiguous match leaves open (a corridor), and for the heading of a match that cannot
-//! tell it, `R` is infinite: that part stays the prediction's.
+//! axis an ambiguous match leaves open (a corridor), `R` is practically infinite (and stretched
+//! along the weakest axis of any match by how little score a move along it loses); for the
+//! heading of a match that cannot tell it, the heading stays the prediction's.
 //!
 //! Translation and heading are filtered separately (no cross-covariance); the heading's effect
 //! on the translation over a step (`d² · σ_θ²`) is added to the translation's variance. This is
@@ -30,8 +31,9 @@ const RAD_PER_UNIT: f32 = core::f32::consts::TAU / FULL_TURN as f32;
 /// 2³⁰: [`Angle::cos_sin_q30`]'s one.
 const Q30: f32 = (1u32 << 30) as f32;
 
-/// The variance of a direction a match does not constrain, mm² (a kilometre's square).
-const OPEN: f32 = 1e12;
+/// The variance of a direction a match does not constrain, mm² (ten thousand times the
+/// largest variance a prediction can have, [`MAX_VAR_MM2`]: its gain stays below 10⁻⁴).
+const OPEN: f32 = 1e16;
 
 /// Variances never fall below these (mm², rad²): one millimetre, a thousandth of a degree, so
 /// a long stand-still cannot make the filter deaf to every later match.
@@ -150,46 +152,65 @@ impl Uncertainty {
             )
         };
         // The integer table (no f64, no libm's sin/cos on the board).
-        let (c, s) = q.weak_axis.cos_sin_q30();
+        let axis = match verdict {
+            Verdict::Ambiguous { weak_axis } => *weak_axis,
+            _ => q.weak_axis,
+        };
+        let (c, s) = axis.cos_sin_q30();
         let (c, s) = (c as f32 / Q30, s as f32 / Q30);
-        let (rxx, rxy, ryy) = (r2 + stretch * c * c, stretch * c * s, r2 + stretch * s * s);
         let ex = (i64::from(matched.x_mm) - i64::from(predicted.x_mm)) as f32;
         let ey = (i64::from(matched.y_mm) - i64::from(predicted.y_mm)) as f32;
+        // In the frame of the weak axis `u = (c, s)` and its normal `n = (−s, c)` R is diagonal
+        // (r², r² + stretch): no f32 cancellation however large the stretch (in the world frame
+        // the products of an open axis cancel to noise unless it is x or y).
+        let (pnn, pnu, puu) = (
+            s * s * self.xx - 2.0 * c * s * self.xy + c * c * self.yy,
+            -s * c * self.xx + (c * c - s * s) * self.xy + c * s * self.yy,
+            c * c * self.xx + 2.0 * c * s * self.xy + s * s * self.yy,
+        );
+        let (en, eu) = (-s * ex + c * ey, c * ex + s * ey);
+        let (rn, ru) = (r2, r2 + stretch);
         // An innovation the model cannot explain (odometry slipped, or is worse than its
         // settings say) widens P until it is a one-σ innovation (P ← f P + (f − 1) r² I,
-        // f = d²: S grows by f where the match constrains it, not along an open axis), so the
-        // match is taken nearly whole: without this the filter would follow such odometry for
-        // many scans. Within the gate the two are averaged.
-        let d2 = mahalanobis2(ex, ey, self.xx + rxx, self.xy + rxy, self.yy + ryy);
+        // f = d²: S grows by f where the match constrains it, not along a stretched axis), so
+        // the match is taken nearly whole: without this the filter would follow such odometry
+        // for many scans. Within the gate the two are averaged.
+        let d2 = mahalanobis2(en, eu, pnn + rn, pnu, puu + ru);
         self.learn(d2 / 2.0);
+        let (mut pnn, mut pnu, mut puu) = (pnn, pnu, puu);
         if d2 > GATE_TRANS {
             let f = d2;
-            self.xx = f * self.xx + (f - 1.0) * r2;
-            self.xy *= f;
-            self.yy = f * self.yy + (f - 1.0) * r2;
-            self.clamp();
+            pnn = f * pnn + (f - 1.0) * r2;
+            pnu *= f;
+            puu = f * puu + (f - 1.0) * r2;
         }
-        // S = P + R, K = P S⁻¹.
-        let (sxx, sxy, syy) = (self.xx + rxx, self.xy + rxy, self.yy + ryy);
-        let det = sxx * syy - sxy * sxy;
-        let (mut gx, mut gy) = (0.0f32, 0.0f32);
+        // S = P + R, K = P S⁻¹, in the (n, u) frame.
+        let (snn, snu, suu) = (pnn + rn, pnu, puu + ru);
+        let det = snn * suu - snu * snu;
+        let (mut gn, mut gu) = (0.0f32, 0.0f32);
         if det.is_finite() && det > 0.0 {
-            let (ixx, ixy, iyy) = (syy / det, -sxy / det, sxx / det);
-            let kxx = self.xx * ixx + self.xy * ixy;
-            let kxy = self.xx * ixy + self.xy * iyy;
-            let kyx = self.xy * ixx + self.yy * ixy;
-            let kyy = self.xy * ixy + self.yy * iyy;
-            gx = kxx * ex + kxy * ey;
-            gy = kyx * ex + kyy * ey;
+            let (inn, inu, iuu) = (suu / det, -snu / det, snn / det);
+            let knn = pnn * inn + pnu * inu;
+            let knu = pnn * inu + pnu * iuu;
+            let kun = pnu * inn + puu * inu;
+            let kuu = pnu * inu + puu * iuu;
+            gn = knn * en + knu * eu;
+            gu = kun * en + kuu * eu;
             // P ← (I − K) P, symmetrised.
-            let pxx = (1.0 - kxx) * self.xx - kxy * self.xy;
-            let pxy = (1.0 - kxx) * self.xy - kxy * self.yy;
-            let pyx = -kyx * self.xx + (1.0 - kyy) * self.xy;
-            let pyy = -kyx * self.xy + (1.0 - kyy) * self.yy;
-            self.xx = pxx;
-            self.xy = 0.5 * (pxy + pyx);
-            self.yy = pyy;
+            let qnn = (1.0 - knn) * pnn - knu * pnu;
+            let qnu = (1.0 - knn) * pnu - knu * puu;
+            let qun = -kun * pnn + (1.0 - kuu) * pnu;
+            let quu = -kun * pnu + (1.0 - kuu) * puu;
+            pnn = qnn;
+            pnu = 0.5 * (qnu + qun);
+            puu = quu;
         }
+        // Back to the world frame: P = [n u] P' [n u]ᵀ, g = n gn + u gu.
+        self.xx = s * s * pnn - 2.0 * s * c * pnu + c * c * puu;
+        self.xy = -s * c * pnn + (c * c - s * s) * pnu + s * c * puu;
+        self.yy = c * c * pnn + 2.0 * s * c * pnu + s * s * puu;
+        self.clamp();
+        let (gx, gy) = (-s * gn + c * gu, c * gn + s * gu);
         let mut heading = predicted.heading;
         if !matches!(verdict, Verdict::AmbiguousRotation) {
             let rt = f32::from(cfg.match_sigma_mdeg) / 1000.0 * (core::f32::consts::PI / 180.0);
@@ -220,7 +241,11 @@ impl Uncertainty {
     /// degree of freedom: 1 on average when the model is right): innovations larger than the
     /// model explains say odometry is worse than its settings, smaller ones that it is not.
     fn learn(&mut self, nis: f32) {
-        let nis = if nis.is_finite() { nis.min(5.0) } else { 5.0 };
+        let nis = if nis.is_finite() {
+            nis.max(0.0).min(5.0)
+        } else {
+            5.0
+        };
         let k = self.odometry_scale * (1.0 + ODOMETRY_LEARN * (nis - 1.0));
         self.odometry_scale = clamp_var(k, 1.0, MAX_ODOMETRY_SCALE);
     }
@@ -236,6 +261,7 @@ impl Uncertainty {
             0.0
         };
         self.tt = clamp_var(self.tt, MIN_VAR_RAD2, MAX_VAR_RAD2);
+        self.odometry_scale = clamp_var(self.odometry_scale, 1.0, MAX_ODOMETRY_SCALE);
     }
 }
 
@@ -271,7 +297,9 @@ fn round_add(a: i32, g: f32) -> i32 {
     }
     // `as` saturates (and `g` is finite here).
     let g = libm::roundf(g) as i64;
-    (i64::from(a) + g).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+    i64::from(a)
+        .saturating_add(g)
+        .clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }
 
 #[cfg(test)]
@@ -399,6 +427,35 @@ mod tests {
     }
 
     #[test]
+    fn a_diagonal_corridor_corrects_across_it_only() {
+        // Any weak axis, not only x or y: the open direction gets (almost) nothing, the
+        // normal half of the innovation (P = R), whatever the angle.
+        let c = cfg();
+        let p = Pose::new(0, 0, Angle::ZERO);
+        for deg in [5.6f64, 22.5, 34.0, 45.0, 61.0, 123.0, 200.0] {
+            let a = Angle::from_degrees(deg);
+            let (cu, su) = (deg.to_radians().cos(), deg.to_radians().sin());
+            // 40 mm across the corridor and 300 mm along it.
+            let (along, across) = (300.0, 40.0);
+            let m = Pose::new(
+                (along * cu - across * su).round() as i32,
+                (along * su + across * cu).round() as i32,
+                Angle::ZERO,
+            );
+            let mut u = as_uncertain_as_the_match();
+            let f = u.fuse(&result(p, m, Verdict::Ambiguous { weak_axis: a }), &c);
+            let (fx, fy) = (f64::from(f.x_mm), f64::from(f.y_mm));
+            let got_along = fx * cu + fy * su;
+            let got_across = -fx * su + fy * cu;
+            assert!(got_along.abs() < 2.0, "{deg}°: {f:?}");
+            assert!((got_across - 20.0).abs() < 2.0, "{deg}°: {f:?}");
+            for v in [u.xx, u.xy, u.yy] {
+                assert!(v.is_finite(), "{deg}°: {u:?}");
+            }
+        }
+    }
+
+    #[test]
     fn an_innovation_the_model_cannot_explain_widens_the_prediction() {
         let c = cfg();
         let p = Pose::new(0, 0, Angle::ZERO);
@@ -449,11 +506,10 @@ mod tests {
         }
         let p = Pose::new(i32::MIN, i32::MAX, Angle::ZERO);
         let m = Pose::new(i32::MAX, i32::MIN, Angle::HALF);
-        let f = u.fuse(&result(p, m, Verdict::Trusted), &c);
-        for v in [u.xx, u.xy, u.yy, u.tt] {
-            assert!(v.is_finite() && v >= -MAX_VAR_MM2, "{u:?}");
+        let _ = u.fuse(&result(p, m, Verdict::Trusted), &c);
+        for v in [u.xx, u.xy, u.yy, u.tt, u.odometry_scale] {
+            assert!(v.is_finite(), "{u:?}");
         }
-        let _ = f;
         let mut nan = Uncertainty {
             xx: f32::NAN,
             xy: f32::NAN,
