@@ -242,7 +242,7 @@ impl Uncertainty {
     /// model explains say odometry is worse than its settings, smaller ones that it is not.
     fn learn(&mut self, nis: f32) {
         let nis = if nis.is_finite() {
-            nis.max(0.0).min(5.0)
+            clamp_var(nis, 0.0, 5.0)
         } else {
             5.0
         };
