@@ -245,7 +245,7 @@ fn a_single_wall_leaves_its_direction_to_odometry() {
 #[test]
 fn correct_then_insert_uses_one_match() {
     let (mut s, next) = mapped();
-    // Off by more than the match's noise (30 mm, 0.4° at this σ), so the filter takes most of
+    // Off by more than the match's noise (29 mm, 0.8° at this σ), so the filter takes most of
     // the match.
     let odo = pose_of((next.0 + 100.0, next.1 - 70.0, next.2 + 0.05));
     let beams = scan(&room(), next);

@@ -39,7 +39,7 @@
 //! matcher cannot tell (too few points, no overlap with the map, a correction outside the search
 //! window) the caller keeps mapping on odometry; when the map leaves one direction open (a
 //! corridor, a single wall) or the rotation, the weak prior on the prediction has kept that part
-//! where odometry put it and the rest is corrected ([`MatchResult::accepted`]).
+//! near where odometry put it, and the filter of [`fuse`] takes next to nothing of it.
 //!
 //! ## How: NDT from the occupancy grid, Gauss–Newton, coarse to fine
 //! * **Weights.** A cell's log-odds `l` becomes a weight in `[0, 1]` (Q15) by a ramp: 0 at or
@@ -223,11 +223,12 @@ pub struct MatchConfig {
     pub match_sigma_mm: u16,
     /// σ of the match's heading, millidegrees ([`fuse`]).
     pub match_sigma_mdeg: u16,
-    /// Odometry's σ per axis per metre travelled, ‰ of the distance ([`fuse`]).
+    /// Odometry's σ per axis over one step between scans, ‰ of that step's distance ([`fuse`];
+    /// as in [`odometry`], the variance adds per step, so it is the step's, not a metre's).
     pub odo_trans_permille: u16,
-    /// Odometry's σ of a turn per radian turned, ‰ ([`fuse`]).
+    /// Odometry's σ of one step's turn, ‰ of that turn ([`fuse`]).
     pub odo_turn_permille: u16,
-    /// Odometry's heading drift per metre travelled, millidegrees ([`fuse`]; a bias taken as
+    /// Odometry's heading drift over one step, millidegrees per metre of it ([`fuse`]; a bias taken as
     /// noise, so the filter follows it).
     pub odo_drift_mdeg_per_m: u16,
 }

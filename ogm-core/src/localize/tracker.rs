@@ -27,8 +27,9 @@ pub struct Tracker<const N: usize> {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Correction {
-    /// The pose to insert the scan with (and to report): the match's if it is usable
-    /// ([`Verdict::is_usable`]), else the prediction.
+    /// The pose to insert the scan with (and to report): if the match is usable
+    /// ([`Verdict::is_usable`]) the prediction moved towards it as far as the filter of
+    /// [`crate::localize::fuse`] says, else the prediction.
     pub pose: Pose,
     /// The odometry pose the scan came with.
     pub odometry: Pose,
@@ -58,7 +59,7 @@ impl Correction {
     }
 }
 
-/// The correction map ← odometry without settings or points (28 bytes): what a
+/// The correction map ← odometry without settings or points (48 bytes): what a
 /// [`crate::Session`] keeps, its point buffer lent per scan ([`TrackState::update`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
