@@ -138,17 +138,20 @@ pub struct RunConfig {
 }
 
 /// The noise of the robot's wheel odometry, per step between scans: what the pose filter
-/// ([`crate::localize::fuse`]) expects of it. Errors larger than these are still corrected
-/// (a match the filter cannot explain widens it), but more slowly; smaller ones leave the
-/// matches' own errors more say than they deserve.
+/// ([`crate::localize::fuse`]) expects of it ([`RunConfig::odometry`] on the wire,
+/// [`crate::localize::MatchConfig::odometry`] in the matcher). As in
+/// [`crate::localize::odometry`], variances add per step, so each σ is of one step's motion.
+/// Errors larger than these are still corrected (a match the filter cannot explain widens it),
+/// but more slowly; smaller ones leave the matches' own errors more say than they deserve.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct OdometryNoise {
-    /// σ per axis, ‰ of the distance travelled.
+    /// σ per axis, ‰ of the step's distance.
     pub trans_permille: u16,
-    /// σ of a turn, ‰ of the angle turned.
+    /// σ of the step's turn, ‰ of that turn.
     pub turn_permille: u16,
-    /// Heading drift per metre travelled, millidegrees (a bias taken as noise).
+    /// Heading drift over the step, millidegrees per metre of it (a bias taken as noise, so the
+    /// filter follows it).
     pub drift_mdeg_per_m: u16,
 }
 

@@ -110,10 +110,11 @@ impl Uncertainty {
         );
         let turn = f32::from(step.heading.signed_diff(Angle::ZERO)).abs() * RAD_PER_UNIT;
         let d_m = d / 1000.0;
-        let st = f32::from(cfg.odo_trans_permille) / 1000.0 * d;
-        let sr = f32::from(cfg.odo_turn_permille) / 1000.0 * turn;
-        let sd =
-            f32::from(cfg.odo_drift_mdeg_per_m) / 1000.0 * (core::f32::consts::PI / 180.0) * d_m;
+        let st = f32::from(cfg.odometry.trans_permille) / 1000.0 * d;
+        let sr = f32::from(cfg.odometry.turn_permille) / 1000.0 * turn;
+        let sd = f32::from(cfg.odometry.drift_mdeg_per_m) / 1000.0
+            * (core::f32::consts::PI / 180.0)
+            * d_m;
         // The heading's uncertainty before the step swings the step's translation.
         let swing = d * d * self.tt;
         let k = clamp_var(self.odometry_scale, 1.0, MAX_ODOMETRY_SCALE);
@@ -305,6 +306,7 @@ fn round_add(a: i32, g: f32) -> i32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::OdometryNoise;
     use crate::localize::{Quality, Work};
 
     fn result(predicted: Pose, pose: Pose, verdict: Verdict) -> MatchResult {
@@ -495,9 +497,11 @@ mod tests {
         let c = MatchConfig {
             match_sigma_mm: u16::MAX,
             match_sigma_mdeg: u16::MAX,
-            odo_trans_permille: u16::MAX,
-            odo_turn_permille: u16::MAX,
-            odo_drift_mdeg_per_m: u16::MAX,
+            odometry: OdometryNoise {
+                trans_permille: u16::MAX,
+                turn_permille: u16::MAX,
+                drift_mdeg_per_m: u16::MAX,
+            },
             ..MatchConfig::default()
         };
         let mut u = Uncertainty::ZERO;

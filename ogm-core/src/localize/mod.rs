@@ -1,6 +1,7 @@
 //! Pose correction on the robot: scan-to-map matching against the robot's own log-odds map, so
 //! that wheel odometry is enough (issue 39). A layer above [`crate::map`]: imports
-//! [`crate::types`], [`crate::error`] and [`crate::map`] only (not the sampler, lidar, wire or
+//! [`crate::types`], [`crate::error`], [`crate::config`] ([`crate::config::OdometryNoise`]) and
+//! [`crate::map`] only (not the sampler, lidar, wire or
 //! session layers), so a [`crate::Session`] can own it.
 //!
 //! ## Using it (what a `Session` does once per scan)
@@ -64,7 +65,7 @@
 //!   on the grid max-pooled 2 × 2, translation kept; the best one is where Gauss–Newton starts.
 //! * **Then a filter** ([`fuse`]): the match is one measurement with its own error
 //!   ([`MatchConfig::match_sigma_mm`], [`MatchConfig::match_sigma_mdeg`]), odometry another
-//!   ([`MatchConfig::odo_trans_permille`] …); a Kalman filter on the corrected pose weighs them,
+//!   ([`MatchConfig::odometry`]); a Kalman filter on the corrected pose weighs them,
 //!   so a match's location-dependent bias is averaged over scans instead of walked into the map.
 //! * **Gauss–Newton with the prediction as a prior.** From [`MatchConfig::levels`] down to the
 //!   grid, up to [`MatchConfig::iterations`] steps per level solve `(H + Λ) δ = b − Λ ξ` with
@@ -122,6 +123,7 @@ pub use matcher::{match_scan, MatchResult, Quality, Verdict, Work};
 pub use points::{prepare_points, PointStats, ScanPoint};
 pub use tracker::{Correction, TrackState, Tracker};
 
+use crate::config::OdometryNoise;
 use crate::error::{Error, Result};
 use crate::types::angle::Angle;
 use crate::types::fixed::LogOdds;
@@ -223,14 +225,8 @@ pub struct MatchConfig {
     pub match_sigma_mm: u16,
     /// σ of the match's heading, millidegrees ([`fuse`]).
     pub match_sigma_mdeg: u16,
-    /// Odometry's σ per axis over one step between scans, ‰ of that step's distance ([`fuse`];
-    /// as in [`odometry`], the variance adds per step, so it is the step's, not a metre's).
-    pub odo_trans_permille: u16,
-    /// Odometry's σ of one step's turn, ‰ of that turn ([`fuse`]).
-    pub odo_turn_permille: u16,
-    /// Odometry's heading drift over one step, millidegrees per metre of it ([`fuse`]; a bias taken as
-    /// noise, so the filter follows it).
-    pub odo_drift_mdeg_per_m: u16,
+    /// The robot's odometry noise ([`fuse`]: the filter's process noise).
+    pub odometry: OdometryNoise,
 }
 
 impl Default for MatchConfig {
@@ -268,9 +264,7 @@ impl Default for MatchConfig {
             budget_reads: 50_000,
             match_sigma_mm: 10,
             match_sigma_mdeg: 130,
-            odo_trans_permille: 20,
-            odo_turn_permille: 50,
-            odo_drift_mdeg_per_m: 500,
+            odometry: OdometryNoise::CHEAP_ROBOT,
         }
     }
 }

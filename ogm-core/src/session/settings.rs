@@ -45,18 +45,23 @@ const MIN_MATCH_SIGMA_MM: u32 = 5;
 const MIN_MATCH_SIGMA_MDEG: u32 = 60;
 
 impl RunConfig {
+    /// The sensor's σ in mm (`sigma_milli_cells` of `cell_mm`, saturating).
+    fn sigma_mm(&self) -> u32 {
+        let mm = u64::from(self.sigma_milli_cells) * u64::from(self.cell_mm) / 1000;
+        u32::try_from(mm).unwrap_or(u32::MAX)
+    }
+
     /// The mapper settings: Hähnel's ray model with the free update scaled by
     /// `free_update_q8` and, with `face_band`, the band of σ = `sigma_milli_cells`; default
     /// clamp. [`crate::Error::InvalidModel`] if the scale is out of range or σ rounds to 0 mm.
     pub fn mapper_config(&self) -> Result<MapperConfig> {
         let model = InverseSensorModel::hahnel_free_scaled(self.free_update_q8)?;
         let model = if self.face_band {
-            let sigma_mm = u64::from(self.sigma_milli_cells) * u64::from(self.cell_mm) / 1000;
             // The far edge is 0 for a band of 3 cells or more (the firmware's default); a
             // narrower band (`RunConfig::with_sensor`) takes f64 arithmetic here, once per
             // configuration, the same on the board and the host.
             model
-                .with_face_band(u32::try_from(sigma_mm).unwrap_or(u32::MAX))?
+                .with_face_band(self.sigma_mm())?
                 .with_far_edge(self.band_far_edge_q8())?
         } else {
             model
@@ -86,15 +91,12 @@ impl RunConfig {
             return None;
         }
         let d = MatchConfig::default();
-        let sigma_mm = u64::from(self.sigma_milli_cells) * u64::from(self.cell_mm) / 1000;
-        let sigma = u32::try_from(sigma_mm).unwrap_or(u32::MAX);
+        let sigma = self.sigma_mm();
         let c = MatchConfig {
             max_range_mm: d.max_range_mm.min(self.max_range_mm),
             min_range_mm: d.min_range_mm.max(self.min_range_mm),
             budget_reads: MATCH_BUDGET_READS,
-            odo_trans_permille: self.odometry.trans_permille,
-            odo_turn_permille: self.odometry.turn_permille,
-            odo_drift_mdeg_per_m: self.odometry.drift_mdeg_per_m,
+            odometry: self.odometry,
             match_sigma_mm: to_u16(
                 (sigma.saturating_mul(MATCH_SIGMA_PER_SIGMA_Q8) / 256).max(MIN_MATCH_SIGMA_MM),
             ),
