@@ -491,14 +491,17 @@ fn per_scan(
         let q = c.matched.map(|m| m.quality).unwrap_or_default();
         if !quiet {
             println!(
-                "  scan {k:2}: predicted {} corrected {} {:?} overlap {} drops {}/{}/{}",
+                "  scan {k:2}: predicted {} corrected {} {:?} overlap {} drops {}/{}/{} matched {}/{} contradicted {}",
                 e(&c.predicted, t),
                 e(&c.pose, t),
                 c.verdict(),
                 q.overlap,
                 q.drop_weak,
                 q.drop_strong,
-                q.drop_turn
+                q.drop_turn,
+                q.matched,
+                q.points,
+                q.contradicted
             );
         }
         pos += f64::from(c.pose.x_mm - t.x_mm).hypot(f64::from(c.pose.y_mm - t.y_mm));

@@ -147,6 +147,12 @@ pub struct FirmwareArgs {
     /// `--odometry-noise`, else `off` (the true poses need no correction).
     #[arg(long, value_enum)]
     pub correction: Option<CorrectionArg>,
+    /// What the robot is told of its odometry (`RunConfig::odometry`, the pose filter's
+    /// expectation): `cheap` (2 % of the distance, 5 % of the turn, 0.5°/m; the robot's default)
+    /// or `issue39` (1 %, 2 %, 0.11°/m: `--odometry-noise issue39` calibrated). Default: the
+    /// robot's own default, whatever odometry the simulator sends.
+    #[arg(long, value_enum)]
+    pub robot_odometry: Option<RobotOdometryArg>,
     /// Only decode a captured map stream (e.g. firmware/target/qemu/uart1.out) and summarise it.
     #[arg(long)]
     pub decode: Option<PathBuf>,
@@ -194,6 +200,7 @@ impl Default for FirmwareArgs {
             range_cap: 0,
             odometry_noise: None,
             correction: None,
+            robot_odometry: None,
         }
     }
 }
@@ -213,6 +220,25 @@ impl CorrectionArg {
         match self {
             CorrectionArg::Off => ogm_core::config::PoseCorrection::Off,
             CorrectionArg::Match => ogm_core::config::PoseCorrection::Match,
+        }
+    }
+}
+
+/// `--robot-odometry`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum RobotOdometryArg {
+    /// `OdometryNoise::CHEAP_ROBOT`.
+    Cheap,
+    /// `OdometryNoise::ISSUE_39`.
+    Issue39,
+}
+
+impl RobotOdometryArg {
+    /// The settings' value.
+    pub fn setting(self) -> ogm_core::config::OdometryNoise {
+        match self {
+            RobotOdometryArg::Cheap => ogm_core::config::OdometryNoise::CHEAP_ROBOT,
+            RobotOdometryArg::Issue39 => ogm_core::config::OdometryNoise::ISSUE_39,
         }
     }
 }

@@ -79,6 +79,10 @@ pub fn run_config(world: &World, args: &FirmwareArgs, max_range_mm: u32) -> RunC
         (None, None) => robot.with_correction(ogm_core::config::PoseCorrection::Off),
         (None, Some(_)) => robot,
     };
+    let robot = match args.robot_odometry {
+        Some(o) => robot.with_odometry_noise(o.setting()),
+        None => robot,
+    };
     args.sampler.apply(RunConfig {
         cell_mm: (world.resolution_m * 1000.0).round() as u32,
         tiles_per_scan: args.tiles_per_scan,

@@ -164,6 +164,14 @@ impl OdometryNoise {
         turn_permille: 50,
         drift_mdeg_per_m: 500,
     };
+
+    /// Issue 39's odometry, calibrated ([`crate::localize::odometry::OdometryModel::ISSUE_39`]):
+    /// 1 % of the distance, 2 % of the turn, 0.11° per metre.
+    pub const ISSUE_39: OdometryNoise = OdometryNoise {
+        trans_permille: 10,
+        turn_permille: 20,
+        drift_mdeg_per_m: 110,
+    };
 }
 
 impl Default for OdometryNoise {

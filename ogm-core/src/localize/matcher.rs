@@ -54,7 +54,10 @@ pub enum Verdict {
     Unconstrained,
     /// Fewer usable points than [`MatchConfig::min_points`] (a lidar that sees nothing).
     TooFewPoints,
-    /// Too few points land on occupied cells: a new area, or a prediction far off the map.
+    /// Too few points have occupied cells near them ([`MatchConfig::min_overlap_permille`]), or
+    /// none lands on a cell above the map's floor: a new area, or a prediction far off the map.
+    /// A map of one or two scans is enough (its cells may all be below ½: a match against it is
+    /// what keeps the error of a new map's first turns out of the map).
     NoOverlap,
     /// The correction reached the edge of the search window: odometry jumped, or the match ran
     /// away.
@@ -592,7 +595,7 @@ fn probe_quality(frame: &Frame<'_>, s: &State, d: i32, free: i16) -> Quality {
 
 /// The verdict from the quality measures (in the order the module docs give).
 fn verdict(q: &Quality, at_edge: bool, cfg: &MatchConfig) -> Verdict {
-    if q.overlap < cfg.min_overlap_permille || q.matched == 0 {
+    if q.overlap < cfg.min_overlap_permille || q.score == 0 {
         Verdict::NoOverlap
     } else if at_edge {
         Verdict::OutOfWindow

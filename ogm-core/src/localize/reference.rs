@@ -402,7 +402,7 @@ pub fn match_scan_f64(
     };
     let q = &out.quality;
     let permille = |v: f64| (v * 1000.0) as u16;
-    out.verdict = if permille(q.overlap) < cfg.min_overlap_permille || q.matched == 0 {
+    out.verdict = if permille(q.overlap) < cfg.min_overlap_permille || q.score <= 0.0 {
         Verdict::NoOverlap
     } else if at_edge {
         Verdict::OutOfWindow

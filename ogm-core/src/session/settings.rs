@@ -16,8 +16,10 @@ use crate::LogOdds;
 const MATCH_BUDGET_READS: u32 = 36_000;
 /// A face band's hit offset, in σ (Q8).
 const OFFSET_PER_SIGMA_Q8: u32 = 256;
-/// A face band's least overlap (‰): its thick walls let a wrong pose touch some of them.
-const MIN_OVERLAP_PERMILLE: u16 = 500;
+/// A face band's least overlap (‰): its thick walls let a wrong pose touch some of them. 350
+/// rather than 500: points entering a new area still fix the pose from the rest (host replay,
+/// drives 1–20 and missions 1–4, docs/firmware.md "Pose correction").
+const MIN_OVERLAP_PERMILLE: u16 = 350;
 /// A face band's quality probe, in σ (Q8).
 const PROBE_PER_SIGMA_Q8: u32 = 256;
 /// A face band's priors are the defaults' divided by this. The defaults weigh the prediction
