@@ -16,7 +16,8 @@
 //! scan's prediction and corrected pose; with `--oracle` every scan is matched against the map
 //! made at the true poses, which separates the matcher's own error from the drift it feeds back
 //! into its map; `--fresh` (with `--odometry perfect`) also predicts every scan at its true
-//! pose: one match's error alone.
+//! pose: one match's error alone (the summary line gives the usable matches' own error beside
+//! the corrected poses': a reset tracker's filter takes nothing of a match).
 
 use std::path::PathBuf;
 
@@ -470,6 +471,7 @@ fn per_scan(
         )
     };
     let (mut pos, mut head) = (0.0f64, 0.0f64);
+    let mut raw = (0.0f64, 0.0f64, 0u32);
     for (k, (s, t)) in scans.iter().zip(truth).enumerate() {
         let map = MapView::new(session.log_odds(), session.geometry())?;
         let mut odometry = s.pose;
@@ -506,13 +508,23 @@ fn per_scan(
         }
         pos += f64::from(c.pose.x_mm - t.x_mm).hypot(f64::from(c.pose.y_mm - t.y_mm));
         head += f64::from(c.pose.heading.signed_diff(t.heading)).abs() * 360.0 / 65536.0;
+        // The match itself (before the filter weighs it), where it is usable.
+        if let Some(m) = c.matched.filter(|m| m.verdict.is_usable()) {
+            raw.0 += f64::from(m.pose.x_mm - t.x_mm).hypot(f64::from(m.pose.y_mm - t.y_mm));
+            raw.1 += f64::from(m.pose.heading.signed_diff(t.heading)).abs() * 360.0 / 65536.0;
+            raw.2 += 1;
+        }
         session.insert(if oracle { t } else { &c.pose }, &s.beams)?;
     }
     let n = scans.len().max(1) as f64;
+    let r = f64::from(raw.2.max(1));
     println!(
-        "  per-scan mean error {:.3} m {:.2}°",
+        "  per-scan mean error {:.3} m {:.2}°; the usable matches themselves ({} scans) {:.3} m {:.2}°",
         pos / n / 1000.0,
-        head / n
+        head / n,
+        raw.2,
+        raw.0 / r / 1000.0,
+        raw.1 / r
     );
     Ok(())
 }
