@@ -6,10 +6,12 @@
 //! timing test). Three runs: the true poses, the odometry with correction off, and with it on.
 //! * every run's host replay is bit-exact with the firmware;
 //! * the poses the robot reports (its scan reports' `pose`) are closer to the truth than the
-//!   odometry it was sent: the largest error at most 75 % of odometry's, the mean at most 70 %
-//!   (stops ~2 m apart, so on about half the scans the matcher cannot tell and the filter
-//!   keeps odometry's prediction: one such scan sets the largest error);
-//! * its online map beats the odometry-only map by at least 0.03 max F1.
+//!   odometry it was sent: the largest error at most 40 % of odometry's, the mean at most 45 %
+//!   (18 % and 28 % at the time of writing);
+//! * at least 70 % of the scans are matched (27 of 32; stops ~2 m apart, so on some scans the
+//!   matcher cannot tell and the filter keeps odometry's prediction);
+//! * its online map beats the odometry-only map by at least 0.10 max F1 (0.7554 against 0.5687)
+//!   and lies within 0.15 of the true-pose map's (0.8714).
 //!
 //! Not (yet) asserted: issue 39's bar of 0.02 F1 from the true-pose run. At the time of writing
 //! (`host-sim firmware --seed 5 --accuracy --fixed-updates 10000 [--odometry-noise issue39
@@ -59,13 +61,14 @@ fn drifting_odometry_is_corrected_on_the_robot() {
     assert_eq!(o_off.corrected, o_off.odometry);
     // On, the robot's poses are closer to the truth.
     assert!(o.odometry.max_m > 0.5, "the drift is real: {o:?}");
-    assert!(o.corrected.max_m <= 0.75 * o.odometry.max_m, "{o:?}");
-    assert!(o.corrected.mean_m <= 0.7 * o.odometry.mean_m, "{o:?}");
-    // At least 40 % of the scans matched (14 of 32 at the time of writing: stops ~2 m apart).
-    assert!(o.matched * 5 >= o.corrected.scans * 2, "{o:?}");
+    assert!(o.corrected.max_m <= 0.4 * o.odometry.max_m, "{o:?}");
+    assert!(o.corrected.mean_m <= 0.45 * o.odometry.mean_m, "{o:?}");
+    // At least 70 % of the scans matched (27 of 32 at the time of writing).
+    assert!(o.matched * 10 >= o.corrected.scans * 7, "{o:?}");
     let (f_truth, f_off, f_on) = (online_f1(&truth), online_f1(&off), online_f1(&on));
     eprintln!(
         "online max F1: true poses {f_truth:.4}, odometry {f_off:.4}, odometry corrected {f_on:.4}"
     );
-    assert!(f_on >= f_off + 0.03, "{f_on} vs {f_off}");
+    assert!(f_on >= f_off + 0.10, "{f_on} vs {f_off}");
+    assert!(f_on >= f_truth - 0.15, "{f_on} vs {f_truth}");
 }
