@@ -304,6 +304,36 @@ fn nothing_to_match_is_not_trusted() {
     assert_eq!(r.verdict, Verdict::NoOverlap, "{r:?}");
 }
 
+/// A new map: one scan, every cell below half occupied (one noisy scan's walls are). The match
+/// against it is what keeps the turn error of a map's first steps out of the map, so it is not
+/// "no overlap" (it was, while the verdict asked for a point on a cell above ½).
+#[test]
+fn a_new_maps_weak_walls_are_matched() {
+    let g = GridGeometry::new(140, 100, 50, -525, -525).unwrap();
+    let first = (3000.0, 2000.0, 0.0);
+    let mut cells = build_map(&room(), g, &[first], 10_000.0);
+    let cfg = loose();
+    // Every occupied cell below half of the ramp, as in a one-scan face-band map.
+    let weak = LogOdds(cfg.occupied.0 / 2 - 100);
+    for c in cells.iter_mut().filter(|c| c.0 > weak.0) {
+        *c = weak;
+    }
+    assert!(cells.iter().any(|c| c.0 > cfg.floor.0));
+    let map = MapView::new(&cells, g).unwrap();
+    let truth = (3040.0, 2010.0, 0.05);
+    let pts = points(&scan(&room(), truth, 450, 10_000.0), &g, &cfg);
+    let predicted = pose_of((truth.0 + 40.0, truth.1 - 30.0, truth.2 + 2f64.to_radians()));
+    let r = match_scan(&map, &pts, &predicted, &cfg);
+    assert_eq!(r.quality.matched, 0, "no point on a cell above ½: {r:?}");
+    assert!(r.verdict.is_usable(), "{r:?}");
+    let (d0, a0) = err(&predicted, truth);
+    let (d, a) = err(&r.pose, truth);
+    assert!(
+        d < d0 / 2.0 && a < a0 / 4.0,
+        "{d:.1} mm {a:.2}° from {d0:.1} mm {a0:.2}°: {r:?}"
+    );
+}
+
 #[test]
 fn odometry_jump_is_not_trusted() {
     let (g, cells) = room_map();

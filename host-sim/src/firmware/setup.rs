@@ -106,3 +106,29 @@ pub(super) fn idle_periods_us(secs: &[f64]) -> anyhow::Result<Vec<u32>> {
     }
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::firmware::args::RobotOdometryArg;
+    use crate::firmware::odometry::parse_odometry;
+    use ogm_core::config::{OdometryNoise, PoseCorrection};
+
+    /// `--odometry-noise` alone leaves the robot its own (cheap) odometry settings and turns
+    /// correction on; `--robot-odometry` tells it the model's.
+    #[test]
+    fn robot_odometry_reaches_the_settings() {
+        let mut args = FirmwareArgs {
+            odometry_noise: Some(parse_odometry("issue39").unwrap()),
+            ..FirmwareArgs::default()
+        };
+        let world = firmware_world(&args).unwrap();
+        let own = run_config(&world, &args, 10_000);
+        assert_eq!(own.odometry, OdometryNoise::CHEAP_ROBOT);
+        assert_eq!(own.correction, PoseCorrection::Match);
+        args.robot_odometry = Some(RobotOdometryArg::Issue39);
+        let told = run_config(&world, &args, 10_000);
+        assert_eq!(told.odometry, OdometryNoise::ISSUE_39);
+        assert_eq!(told, own.with_odometry_noise(OdometryNoise::ISSUE_39));
+    }
+}
