@@ -104,7 +104,7 @@
 //! [`crate::Angle`] unit (2²⁴ per turn), weights Q15, inverse covariances Q12 per cell², the
 //! normal equations `i64` (Q28). Every
 //! value derived from input is clamped or saturated (points beyond [`MAX_POINT_SUB`], poses far
-//! outside the grid: no overlap), so no input panics or overflows. [`reference`] (feature
+//! outside the grid: no overlap), so no input panics or overflows. [`mod@reference`] (feature
 //! `reference`) is the same algorithm in `f64`, which the tests compare against.
 
 pub mod field;
@@ -193,8 +193,9 @@ pub struct MatchConfig {
     pub max_shift_mm: u32,
     /// The correction may turn the pose this far from the prediction.
     pub max_turn: Angle,
-    /// Headings tried each side of the prediction before Gauss–Newton (0 = none), one
-    /// [`MatchConfig::turn_step`] apart and within `max_turn`: the best-scoring one (points on
+    /// Headings tried each side of the prediction before Gauss–Newton (0 = none), one step
+    /// apart (the turn that moves a point at the points' mean distance by one cell) and within
+    /// `max_turn`: the best-scoring one (points on
     /// the grid max-pooled 2 × 2) is where Gauss–Newton starts. Wheel odometry's error is mostly
     /// the heading, and a heading error of a few degrees moves far points out of every window's
     /// reach, where Gauss–Newton only finds part of the way back.
