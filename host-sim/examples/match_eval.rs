@@ -13,7 +13,7 @@
 //! on its face-band map; `--set` overrides them), a second a run; the pose error of odometry and
 //! of the corrected poses. Statistically the firmware's runs, not bit-exact with them (the
 //! firmware gets the scans through the LD06 encoding). `--per-scan [--oracle] [--quiet]`: each
-//! scan's prediction and corrected pose; with `--oracle` every scan is matched against the map
+//! scan's prediction, match and corrected pose; with `--oracle` every scan is matched against the map
 //! made at the true poses, which separates the matcher's own error from the drift it feeds back
 //! into its map; `--fresh` (with `--odometry perfect`) also predicts every scan at its true
 //! pose: one match's error alone (the summary line gives the usable matches' own error beside
@@ -493,8 +493,9 @@ fn per_scan(
         let q = c.matched.map(|m| m.quality).unwrap_or_default();
         if !quiet {
             println!(
-                "  scan {k:2}: predicted {} corrected {} {:?} overlap {} drops {}/{}/{} matched {}/{} contradicted {}",
+                "  scan {k:2}: predicted {} match {} corrected {} {:?} overlap {} drops {}/{}/{} matched {}/{} contradicted {}",
                 e(&c.predicted, t),
+                c.matched.map_or_else(|| "-".to_string(), |m| e(&m.pose, t)),
                 e(&c.pose, t),
                 c.verdict(),
                 q.overlap,
