@@ -470,6 +470,13 @@ fn per_scan(
             f64::from(p.heading.signed_diff(q.heading)) * 360.0 / 65536.0
         )
     };
+    // Position (mm) and heading (°) error of `p` against `q`.
+    let off = |p: &Pose, q: &Pose| {
+        (
+            f64::from(p.x_mm - q.x_mm).hypot(f64::from(p.y_mm - q.y_mm)),
+            f64::from(p.heading.signed_diff(q.heading)).abs() * 360.0 / 65536.0,
+        )
+    };
     let (mut pos, mut head) = (0.0f64, 0.0f64);
     let mut raw = (0.0f64, 0.0f64, 0u32);
     for (k, (s, t)) in scans.iter().zip(truth).enumerate() {
@@ -507,12 +514,14 @@ fn per_scan(
                 q.contradicted
             );
         }
-        pos += f64::from(c.pose.x_mm - t.x_mm).hypot(f64::from(c.pose.y_mm - t.y_mm));
-        head += f64::from(c.pose.heading.signed_diff(t.heading)).abs() * 360.0 / 65536.0;
+        let (d, a) = off(&c.pose, t);
+        pos += d;
+        head += a;
         // The match itself (before the filter weighs it), where it is usable.
         if let Some(m) = c.matched.filter(|m| m.verdict.is_usable()) {
-            raw.0 += f64::from(m.pose.x_mm - t.x_mm).hypot(f64::from(m.pose.y_mm - t.y_mm));
-            raw.1 += f64::from(m.pose.heading.signed_diff(t.heading)).abs() * 360.0 / 65536.0;
+            let (d, a) = off(&m.pose, t);
+            raw.0 += d;
+            raw.1 += a;
             raw.2 += 1;
         }
         session.insert(if oracle { t } else { &c.pose }, &s.beams)?;
