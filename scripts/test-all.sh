@@ -32,6 +32,10 @@ step "ogm-core: no default features (no_std, no reference), and with defmt"
 cargo build -p ogm-core --no-default-features
 cargo build -p ogm-core --no-default-features --features defmt
 
+step "docs: cargo doc with warnings denied (broken links), with and without ogm-core's default features"
+RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
+RUSTDOCFLAGS="-D warnings" cargo doc -p ogm-core --no-deps --no-default-features
+
 step "cargo test --workspace (with the firmware in QEMU)"
 OGM_REQUIRE_FIRMWARE=1 cargo test --workspace
 

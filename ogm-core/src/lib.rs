@@ -26,8 +26,8 @@
 #![warn(missing_docs)]
 #![forbid(unsafe_code)]
 // The docs link to feature-gated items (`reference`, `Owned`): those links resolve with the
-// features on (the default build, which is checked); a build without them would only report
-// the gated links as broken.
+// features on, and the default build's docs are checked with warnings denied
+// (scripts/test-all.sh); a build without the features would only report the gated links.
 #![cfg_attr(
     not(all(feature = "reference", feature = "alloc")),
     allow(rustdoc::broken_intra_doc_links)
