@@ -26,6 +26,7 @@ use clap::Parser;
 use host_sim::eval::eval_log::{log_geometry, log_name};
 use host_sim::eval::odometry_args::model_named;
 use host_sim::eval::pose_error::{position_error, ratio, rpe_all, Rpe};
+use host_sim::firmware::odometry::PoseErrors;
 use host_sim::sim::carmen::{read_log, ReadOptions};
 use host_sim::sim::track::{
     drift, track, with_poses, TrackSettings, VerdictCounts, TRACK_MARGIN_M,
@@ -377,15 +378,9 @@ fn sim_runs(a: &Args, model: OdometryModel) -> anyhow::Result<()> {
         let t0 = std::time::Instant::now();
         let t = track(&scans, g, range_mm, &settings)?;
         let ms = t0.elapsed().as_secs_f64() * 1000.0 / scans.len().max(1) as f64;
-        let err = |poses: &[Pose]| -> (f64, f64, f64, f64) {
-            let (mut m, mut mx, mut h, mut hx) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
-            for (p, q) in poses.iter().zip(&truth) {
-                let d = f64::from(p.x_mm - q.x_mm).hypot(f64::from(p.y_mm - q.y_mm)) / 1000.0;
-                let th = f64::from(p.heading.signed_diff(q.heading)).abs() * 360.0 / 65536.0;
-                (m, mx, h, hx) = (m + d, mx.max(d), h + th, hx.max(th));
-            }
-            let n = poses.len().max(1) as f64;
-            (m / n, mx, h / n, hx)
+        let err = |poses: &[Pose]| {
+            let e = PoseErrors::of(poses, &truth);
+            (e.mean_m, e.max_m, e.mean_deg, e.max_deg)
         };
         if a.per_scan {
             per_scan(
@@ -470,15 +465,9 @@ fn per_scan(
             f64::from(p.heading.signed_diff(q.heading)) * 360.0 / 65536.0
         )
     };
-    // Position (mm) and heading (°) error of `p` against `q`.
-    let off = |p: &Pose, q: &Pose| {
-        (
-            f64::from(p.x_mm - q.x_mm).hypot(f64::from(p.y_mm - q.y_mm)),
-            f64::from(p.heading.signed_diff(q.heading)).abs() * 360.0 / 65536.0,
-        )
-    };
-    let (mut pos, mut head) = (0.0f64, 0.0f64);
-    let mut raw = (0.0f64, 0.0f64, 0u32);
+    let mut corrected = Vec::with_capacity(scans.len());
+    // The usable matches themselves (before the filter weighs them) and their scans' truth.
+    let (mut matches, mut matched_truth) = (Vec::new(), Vec::new());
     for (k, (s, t)) in scans.iter().zip(truth).enumerate() {
         let map = MapView::new(session.log_odds(), session.geometry())?;
         let mut odometry = s.pose;
@@ -514,27 +503,20 @@ fn per_scan(
                 q.contradicted
             );
         }
-        let (d, a) = off(&c.pose, t);
-        pos += d;
-        head += a;
-        // The match itself (before the filter weighs it), where it is usable.
+        corrected.push(c.pose);
         if let Some(m) = c.matched.filter(|m| m.verdict.is_usable()) {
-            let (d, a) = off(&m.pose, t);
-            raw.0 += d;
-            raw.1 += a;
-            raw.2 += 1;
+            matches.push(m.pose);
+            matched_truth.push(*t);
         }
         session.insert(if oracle { t } else { &c.pose }, &s.beams)?;
     }
-    let n = scans.len().max(1) as f64;
-    let r = f64::from(raw.2.max(1));
+    let (all, raw) = (
+        PoseErrors::of(&corrected, truth),
+        PoseErrors::of(&matches, &matched_truth),
+    );
     println!(
         "  per-scan mean error {:.3} m {:.2}°; the usable matches themselves ({} scans) {:.3} m {:.2}°",
-        pos / n / 1000.0,
-        head / n,
-        raw.2,
-        raw.0 / r / 1000.0,
-        raw.1 / r
+        all.mean_m, all.mean_deg, raw.scans, raw.mean_m, raw.mean_deg
     );
     Ok(())
 }
