@@ -210,8 +210,9 @@ impl Uncertainty {
         );
         let (en, eu) = (-s * ex + c * ey, c * ex + s * ey);
         let (rn, ru) = (r2, r2 + stretch);
-        // An innovation the model cannot explain (odometry slipped, or is worse than its
-        // settings say) widens P until it is a one-σ innovation (P ← f P + (f − 1) r² I,
+        // An innovation the model cannot explain is ignored while odometry's last step was the
+        // sharper source (`ignore_outlier`); otherwise odometry slipped, or is worse than its
+        // settings say, and it widens P until it is a one-σ innovation (P ← f P + (f − 1) r² I,
         // f = d²: S grows by f where the match constrains it, not along a stretched axis), so
         // the match is taken nearly whole: without this the filter would follow such odometry
         // for many scans. Within the gate the two are averaged.

@@ -195,8 +195,8 @@ pub struct MatchConfig {
     pub max_turn: Angle,
     /// Headings tried each side of the prediction before Gauss–Newton (0 = none), one step
     /// apart (the turn that moves a point at the points' mean distance by one cell) and within
-    /// `max_turn`: the best-scoring one (points on
-    /// the grid max-pooled 2 × 2) is where Gauss–Newton starts. Wheel odometry's error is mostly
+    /// `max_turn`: the best-scoring one (points on the grid max-pooled 2 × 2) is where
+    /// Gauss–Newton starts. Wheel odometry's error is mostly
     /// the heading, and a heading error of a few degrees moves far points out of every window's
     /// reach, where Gauss–Newton only finds part of the way back.
     pub turn_search: u8,
